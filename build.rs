@@ -1,0 +1,277 @@
+//! Generates, from the model spec in `weights/`, everything the library needs at compile time:
+//! size constants, the sonar's angle grids and the warp tables for the fixed roll baseline.
+//! The geometry, spec types and CRC are the library's own source files, compiled here too, so
+//! build-time tables and run-time code cannot disagree.
+
+#![allow(dead_code)]
+
+#[path = "src/crc32.rs"]
+mod crc32;
+#[path = "src/geometry.rs"]
+mod geometry;
+#[path = "src/spec.rs"]
+mod spec;
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+fn main() {
+    let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    let spec_path = std::env::var("EPSSN_SPEC")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| root.join("weights/epssn-s.json"));
+    println!("cargo:rerun-if-changed={}", spec_path.display());
+    println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
+    println!("cargo:rerun-if-changed=src/geometry.rs");
+    println!("cargo:rerun-if-changed=src/spec.rs");
+    let spec_bytes = std::fs::read(&spec_path)
+        .unwrap_or_else(|e| panic!("cannot read model spec {}: {e}", spec_path.display()));
+    let spec: spec::ModelSpec = serde_json::from_slice(&spec_bytes)
+        .unwrap_or_else(|e| panic!("model spec {} is invalid: {e}", spec_path.display()));
+    let table_path = root
+        .join("data/aris-beam-widths")
+        .join(format!("{}.csv", spec.sonar.beam_table.as_str()));
+    println!("cargo:rerun-if-changed={}", table_path.display());
+    let beam_deg = read_beam_centres(&table_path);
+    let out = generate(&spec, &beam_deg, crc32::crc32(&spec_bytes));
+    let out_path = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("config.rs");
+    std::fs::write(&out_path, out).unwrap();
+}
+
+fn read_beam_centres(path: &std::path::Path) -> Vec<f64> {
+    let text = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("cannot read beam table {}: {e}", path.display()));
+    let mut centres = Vec::new();
+    for (n, line) in text.lines().enumerate().skip(1) {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').collect();
+        let beam: usize = fields[0].trim().parse().unwrap();
+        assert_eq!(beam, centres.len(), "{}: beam out of order on line {}", path.display(), n + 1);
+        centres.push(fields[1].trim().parse::<f64>().unwrap());
+    }
+    centres
+}
+
+fn check(cond: bool, what: &str) {
+    assert!(cond, "model spec: {what}");
+}
+
+fn array_f64(name: &str, doc: &str, values: &[f64]) -> String {
+    let mut s = format!("/// {doc}\npub static {name}: [f64; {}] = [", values.len());
+    for v in values {
+        write!(s, "{v:?}, ").unwrap();
+    }
+    s.push_str("];\n");
+    s
+}
+
+fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String {
+    let beams = spec.sonar.beams as usize;
+    check(beam_deg.len() == beams, "beam count differs from the beam table");
+    let r = spec.input.range_bins as usize;
+    let b = spec.input.beam_columns as usize;
+    check(beams % b == 0, "beams must be a multiple of beam_columns");
+    let group = beams / b;
+    let stride = spec.features.stride as usize;
+    check(r % stride == 0 && b % stride == 0, "input size must be a multiple of the stride");
+    let (fr, fb) = (r / stride, b / stride);
+    let c = spec.features.channels as usize;
+    let n = spec.planes as usize;
+    let (e, a, dr) = (
+        spec.output.elevation_rows as usize,
+        spec.output.azimuth_columns as usize,
+        spec.output.range_bins as usize,
+    );
+    check(a == b, "azimuth_columns must equal beam_columns (depth columns are input columns)");
+    check(spec.baseline.max_views >= 2 && spec.baseline.max_views <= 3, "max_views is 2 or 3");
+    check(
+        spec.baseline.views >= 2 && spec.baseline.views <= spec.baseline.max_views,
+        "views within 2..=max_views",
+    );
+    let half = geometry::deg_to_rad(spec.sonar.elevation_half_aperture_deg);
+    let beam_rad: Vec<f64> = beam_deg.iter().map(|d| geometry::deg_to_rad(*d)).collect();
+    let input_az: Vec<f64> = (0..b).map(|k| geometry::grouped_azimuth(&beam_rad, group, k)).collect();
+    let feature_az: Vec<f64> =
+        (0..fb).map(|k| geometry::grouped_azimuth(&input_az, stride, k)).collect();
+    let grid = geometry::Grid {
+        r_min: spec.range_window.r_min_m,
+        r_max: spec.range_window.r_max_m,
+        half_elevation: half,
+        column_azimuths: &input_az,
+    };
+    let planes: Vec<f64> = (0..n).map(|j| grid.elevation(j, n)).collect();
+    let rows: Vec<f64> = (0..e).map(|j| grid.elevation(j, e)).collect();
+    let depth_bins: Vec<f64> = (0..dr).map(|i| grid.depth_bin_value(i, dr)).collect();
+    let input_ranges: Vec<f64> = (0..r).map(|i| grid.range_bin_centre(i, r)).collect();
+    let feature_ranges: Vec<f64> = (0..fr).map(|i| grid.range_bin_centre(i, fr)).collect();
+
+    // Layer shapes, chained from the input / cost-volume sizes.
+    let mut layers = String::new();
+    let mut sizes_2d = vec![r, b];
+    let mut layer_count = 0usize;
+    let mut max_feature_act = r * b;
+    let mut names = Vec::new();
+    for l in spec.feature_net.iter() {
+        check(l.kind == spec::LayerKind::Conv2d, "feature_net layers are conv2d");
+        let out = l.output_size(&sizes_2d);
+        layers += &layer_const(l, &sizes_2d, &out);
+        max_feature_act = max_feature_act.max(out.iter().product::<usize>() * l.out_channels as usize);
+        sizes_2d = out.to_vec();
+        names.push(l.name.to_string());
+        layer_count += 1;
+    }
+    check(sizes_2d == vec![fr, fb], "feature_net output size must be input / stride");
+    check(
+        spec.feature_net.last().map(|l| l.out_channels as usize) == Some(c),
+        "feature_net output channels must be features.channels",
+    );
+    let mut sizes_3d = vec![n, fr, fb];
+    let mut max_cost_act = c * n * fr * fb;
+    for l in spec.cost_net.iter() {
+        check(l.kind != spec::LayerKind::Conv2d, "cost_net layers are 3D");
+        let out = l.output_size(&sizes_3d);
+        layers += &layer_const(l, &sizes_3d, &out);
+        max_cost_act = max_cost_act.max(out.iter().product::<usize>() * l.out_channels as usize);
+        sizes_3d = out.to_vec();
+        names.push(l.name.to_string());
+        layer_count += 1;
+    }
+    check(sizes_3d == vec![e, dr, a], "cost_net output must be (elevation_rows, range_bins, azimuth_columns)");
+    check(
+        spec.cost_net.last().map(|l| l.out_channels) == Some(1),
+        "the head has one output channel",
+    );
+
+    // Warp tables, one per extra view.
+    let views = spec.baseline.max_views as usize;
+    let lever = spec.baseline.lever_arm_m;
+    let mut warp = String::new();
+    writeln!(
+        warp,
+        "/// Warp tables for source views 1..MAX_VIEWS (view k is the reference rolled by \
+         k × ROLL_STEP_DEG), `[plane × FEATURE_COLUMNS + column]`.\n\
+         pub static WARP_TABLES: [[WarpEntry; PLANES * FEATURE_COLUMNS]; MAX_VIEWS - 1] = ["
+    )
+    .unwrap();
+    for k in 1..views {
+        let t = geometry::RigidTransform::rolled_about_axis(spec.baseline.roll_step_deg * k as f64, lever);
+        check(t.preserves_range(), "a lever arm needs the range-dependent warp table, which the library does not run yet");
+        let mut table = vec![geometry::WarpEntry::default(); n * fb];
+        geometry::warp_table_pure_roll(&t, &feature_az, &planes, half, spec.warp.fraction_bits, &mut table)
+            .expect("warp table");
+        warp.push_str("    [\n");
+        for en in &table {
+            writeln!(
+                warp,
+                "        WarpEntry {{ column: {}, fraction: {}, visible: {} }},",
+                en.column, en.fraction, en.visible
+            )
+            .unwrap();
+        }
+        warp.push_str("    ],\n");
+    }
+    warp.push_str("];\n");
+
+    let mut s = String::new();
+    s += "// @generated by build.rs from the model spec. Do not edit.\n";
+    writeln!(s, "/// Name of the model spec this build was generated from.\npub const SPEC_NAME: &str = {:?};", spec.name.as_str()).unwrap();
+    writeln!(s, "/// CRC-32 of the model spec file's bytes; weight blobs carry it.\npub const SPEC_HASH: u32 = {spec_hash:#010x};").unwrap();
+    writeln!(s, "/// Sonar system the model is built for.\npub const SONAR_SYSTEM: &str = {:?};", spec.sonar.system.as_str()).unwrap();
+    writeln!(s, "/// Beam-angle table name.\npub const BEAM_TABLE: &str = {:?};", spec.sonar.beam_table.as_str()).unwrap();
+    let consts: &[(&str, &str, usize)] = &[
+        ("BEAMS", "Sonar beams.", beams),
+        ("BEAMS_PER_COLUMN", "Adjacent beams averaged into one input column.", group),
+        ("INPUT_RANGE_BINS", "Input range bins R.", r),
+        ("INPUT_COLUMNS", "Input beam columns B.", b),
+        ("FEATURE_CHANNELS", "Feature channels C.", c),
+        ("FEATURE_STRIDE", "Feature stride.", stride),
+        ("FEATURE_RANGE_BINS", "Feature range bins R / stride.", fr),
+        ("FEATURE_COLUMNS", "Feature columns B / stride.", fb),
+        ("PLANES", "Elevation planes N.", n),
+        ("DEPTH_ROWS", "Depth map elevation rows E.", e),
+        ("DEPTH_COLUMNS", "Depth map azimuth columns A.", a),
+        ("DEPTH_RANGE_BINS", "Range bins of the soft-argmax.", dr),
+        ("VIEWS", "Views used by default, reference included.", spec.baseline.views as usize),
+        ("MAX_VIEWS", "Most views supported, reference included.", views),
+        ("LAYER_COUNT", "Layers in the network.", layer_count),
+        ("MAX_FEATURE_ACTIVATION", "Largest activation of the feature net, elements.", max_feature_act),
+        ("MAX_COST_ACTIVATION", "Largest activation of the cost net, elements.", max_cost_act),
+        ("COST_VOLUME_LEN", "Cost volume elements C × N × R/4 × B/4.", c * n * fr * fb),
+        ("FEATURE_LEN", "Feature map elements C × R/4 × B/4.", c * fr * fb),
+        ("INPUT_LEN", "Input image elements R × B.", r * b),
+        ("DEPTH_LEN", "Depth map elements E × A.", e * a),
+    ];
+    for (name, doc, v) in consts {
+        writeln!(s, "/// {doc}\npub const {name}: usize = {v};").unwrap();
+    }
+    writeln!(s, "/// Bits of the warp table's bilinear fraction.\npub const WARP_FRACTION_BITS: u32 = {};", spec.warp.fraction_bits).unwrap();
+    let fconsts: &[(&str, &str, f64)] = &[
+        ("R_MIN_M", "Start of the range window, metres.", spec.range_window.r_min_m),
+        ("R_MAX_M", "End of the range window, metres.", spec.range_window.r_max_m),
+        ("HALF_ELEVATION_RAD", "Half the elevation aperture, radians.", half),
+        ("ROLL_STEP_DEG", "Roll between consecutive views, degrees.", spec.baseline.roll_step_deg),
+        ("PAIR_TOLERANCE_DEG", "Roll tolerance for pairing frames, degrees.", spec.baseline.pair_tolerance_deg),
+    ];
+    for (name, doc, v) in fconsts {
+        writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
+    }
+    writeln!(s, "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};", lever).unwrap();
+    s += &array_f64("BEAM_CENTRES_DEG", "Beam centres of the sonar's table, degrees, beam 0 first.", beam_deg);
+    s += &array_f64("INPUT_COLUMN_AZIMUTH_RAD", "Azimuth of each input column (and depth column), radians.", &input_az);
+    s += &array_f64("FEATURE_COLUMN_AZIMUTH_RAD", "Azimuth of each feature column, radians.", &feature_az);
+    s += &array_f64("PLANE_ELEVATION_RAD", "Elevation of each virtual plane, radians.", &planes);
+    s += &array_f64("DEPTH_ROW_ELEVATION_RAD", "Elevation of each depth-map row, radians.", &rows);
+    s += &array_f64("DEPTH_BIN_RANGE_M", "Range value of each soft-argmax bin, metres.", &depth_bins);
+    s += &array_f64("INPUT_RANGE_M", "Centre range of each input range bin, metres.", &input_ranges);
+    s += &array_f64("FEATURE_RANGE_M", "Centre range of each feature range bin, metres.", &feature_ranges);
+    s += &layers;
+    write!(s, "/// Every layer in execution order.\npub static LAYERS: [LayerShape; LAYER_COUNT] = [").unwrap();
+    for nm in &names {
+        write!(s, "LAYER_{}, ", nm.to_uppercase()).unwrap();
+    }
+    s += "];\n";
+    s += &warp;
+    s
+}
+
+fn layer_const(l: &spec::LayerSpec, input: &[usize], out: &[usize]) -> String {
+    let pad3 = |v: &[u8], fill: u8| {
+        let mut a = [fill; 3];
+        for (i, x) in v.iter().enumerate() {
+            a[i] = *x;
+        }
+        a
+    };
+    let pad3u = |v: &[usize]| {
+        let mut a = [1usize; 3];
+        for (i, x) in v.iter().enumerate() {
+            a[i] = *x;
+        }
+        a
+    };
+    let kind = match l.kind {
+        spec::LayerKind::Conv2d => "Conv2d",
+        spec::LayerKind::Conv3d => "Conv3d",
+        spec::LayerKind::ConvTranspose3d => "ConvTranspose3d",
+    };
+    format!(
+        "/// Layer `{name}`.\npub const LAYER_{upper}: LayerShape = LayerShape {{ name: {name:?}, kind: LayerKind::{kind}, \
+         in_channels: {}, out_channels: {}, kernel: {:?}, stride: {:?}, padding: {:?}, output_padding: {:?}, \
+         in_size: {:?}, out_size: {:?}, relu: {}, skip: {:?} }};\n",
+        l.in_channels,
+        l.out_channels,
+        pad3(&l.kernel, 1),
+        pad3(&l.stride, 1),
+        pad3(&l.padding, 0),
+        pad3(&l.output_padding, 0),
+        pad3u(input),
+        pad3u(out),
+        l.relu,
+        l.skip.as_ref().map(|s| s.as_str()),
+        name = l.name.as_str(),
+        upper = l.name.to_uppercase(),
+    )
+}
