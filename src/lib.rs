@@ -34,4 +34,5 @@ extern crate std;
 pub mod config;
 pub mod crc32;
 pub mod geometry;
+pub mod grids;
 pub mod spec;
