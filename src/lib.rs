@@ -31,6 +31,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod blob;
 pub mod config;
 pub mod crc32;
 pub mod geometry;
