@@ -49,7 +49,13 @@ fn read_beam_centres(path: &std::path::Path) -> Vec<f64> {
         }
         let fields: Vec<&str> = line.split(',').collect();
         let beam: usize = fields[0].trim().parse().unwrap();
-        assert_eq!(beam, centres.len(), "{}: beam out of order on line {}", path.display(), n + 1);
+        assert_eq!(
+            beam,
+            centres.len(),
+            "{}: beam out of order on line {}",
+            path.display(),
+            n + 1
+        );
         centres.push(fields[1].trim().parse::<f64>().unwrap());
     }
     centres
@@ -70,13 +76,19 @@ fn array_f64(name: &str, doc: &str, values: &[f64]) -> String {
 
 fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String {
     let beams = spec.sonar.beams as usize;
-    check(beam_deg.len() == beams, "beam count differs from the beam table");
+    check(
+        beam_deg.len() == beams,
+        "beam count differs from the beam table",
+    );
     let r = spec.input.range_bins as usize;
     let b = spec.input.beam_columns as usize;
     check(beams % b == 0, "beams must be a multiple of beam_columns");
     let group = beams / b;
     let stride = spec.features.stride as usize;
-    check(r % stride == 0 && b % stride == 0, "input size must be a multiple of the stride");
+    check(
+        r % stride == 0 && b % stride == 0,
+        "input size must be a multiple of the stride",
+    );
     let (fr, fb) = (r / stride, b / stride);
     let c = spec.features.channels as usize;
     let n = spec.planes as usize;
@@ -85,17 +97,26 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         spec.output.azimuth_columns as usize,
         spec.output.range_bins as usize,
     );
-    check(a == b, "azimuth_columns must equal beam_columns (depth columns are input columns)");
-    check(spec.baseline.max_views >= 2 && spec.baseline.max_views <= 3, "max_views is 2 or 3");
+    check(
+        a == b,
+        "azimuth_columns must equal beam_columns (depth columns are input columns)",
+    );
+    check(
+        spec.baseline.max_views >= 2 && spec.baseline.max_views <= 3,
+        "max_views is 2 or 3",
+    );
     check(
         spec.baseline.views >= 2 && spec.baseline.views <= spec.baseline.max_views,
         "views within 2..=max_views",
     );
     let half = geometry::deg_to_rad(spec.sonar.elevation_half_aperture_deg);
     let beam_rad: Vec<f64> = beam_deg.iter().map(|d| geometry::deg_to_rad(*d)).collect();
-    let input_az: Vec<f64> = (0..b).map(|k| geometry::grouped_azimuth(&beam_rad, group, k)).collect();
-    let feature_az: Vec<f64> =
-        (0..fb).map(|k| geometry::grouped_azimuth(&input_az, stride, k)).collect();
+    let input_az: Vec<f64> = (0..b)
+        .map(|k| geometry::grouped_azimuth(&beam_rad, group, k))
+        .collect();
+    let feature_az: Vec<f64> = (0..fb)
+        .map(|k| geometry::grouped_azimuth(&input_az, stride, k))
+        .collect();
     let grid = geometry::Grid {
         r_min: spec.range_window.r_min_m,
         r_max: spec.range_window.r_max_m,
@@ -115,15 +136,22 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     let mut max_feature_act = r * b;
     let mut names = Vec::new();
     for l in spec.feature_net.iter() {
-        check(l.kind == spec::LayerKind::Conv2d, "feature_net layers are conv2d");
+        check(
+            l.kind == spec::LayerKind::Conv2d,
+            "feature_net layers are conv2d",
+        );
         let out = l.output_size(&sizes_2d);
         layers += &layer_const(l, &sizes_2d, &out);
-        max_feature_act = max_feature_act.max(out.iter().product::<usize>() * l.out_channels as usize);
+        max_feature_act =
+            max_feature_act.max(out.iter().product::<usize>() * l.out_channels as usize);
         sizes_2d = out.to_vec();
         names.push(l.name.to_string());
         layer_count += 1;
     }
-    check(sizes_2d == vec![fr, fb], "feature_net output size must be input / stride");
+    check(
+        sizes_2d == vec![fr, fb],
+        "feature_net output size must be input / stride",
+    );
     check(
         spec.feature_net.last().map(|l| l.out_channels as usize) == Some(c),
         "feature_net output channels must be features.channels",
@@ -139,7 +167,10 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         names.push(l.name.to_string());
         layer_count += 1;
     }
-    check(sizes_3d == vec![e, dr, a], "cost_net output must be (elevation_rows, range_bins, azimuth_columns)");
+    check(
+        sizes_3d == vec![e, dr, a],
+        "cost_net output must be (elevation_rows, range_bins, azimuth_columns)",
+    );
     check(
         spec.cost_net.last().map(|l| l.out_channels) == Some(1),
         "the head has one output channel",
@@ -157,11 +188,24 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     )
     .unwrap();
     for k in 1..views {
-        let t = geometry::RigidTransform::rolled_about_axis(spec.baseline.roll_step_deg * k as f64, lever);
-        check(t.preserves_range(), "a lever arm needs the range-dependent warp table, which the library does not run yet");
+        let t = geometry::RigidTransform::rolled_about_axis(
+            spec.baseline.roll_step_deg * k as f64,
+            lever,
+        );
+        check(
+            t.preserves_range(),
+            "a lever arm needs the range-dependent warp table, which the library does not run yet",
+        );
         let mut table = vec![geometry::WarpEntry::default(); n * fb];
-        geometry::warp_table_pure_roll(&t, &feature_az, &planes, half, spec.warp.fraction_bits, &mut table)
-            .expect("warp table");
+        geometry::warp_table_pure_roll(
+            &t,
+            &feature_az,
+            &planes,
+            half,
+            spec.warp.fraction_bits,
+            &mut table,
+        )
+        .expect("warp table");
         warp.push_str("    [\n");
         for en in &table {
             writeln!(
@@ -179,11 +223,25 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     s += "// @generated by build.rs from the model spec. Do not edit.\n";
     writeln!(s, "/// Name of the model spec this build was generated from.\npub const SPEC_NAME: &str = {:?};", spec.name.as_str()).unwrap();
     writeln!(s, "/// CRC-32 of the model spec file's bytes; weight blobs carry it.\npub const SPEC_HASH: u32 = {spec_hash:#010x};").unwrap();
-    writeln!(s, "/// Sonar system the model is built for.\npub const SONAR_SYSTEM: &str = {:?};", spec.sonar.system.as_str()).unwrap();
-    writeln!(s, "/// Beam-angle table name.\npub const BEAM_TABLE: &str = {:?};", spec.sonar.beam_table.as_str()).unwrap();
+    writeln!(
+        s,
+        "/// Sonar system the model is built for.\npub const SONAR_SYSTEM: &str = {:?};",
+        spec.sonar.system.as_str()
+    )
+    .unwrap();
+    writeln!(
+        s,
+        "/// Beam-angle table name.\npub const BEAM_TABLE: &str = {:?};",
+        spec.sonar.beam_table.as_str()
+    )
+    .unwrap();
     let consts: &[(&str, &str, usize)] = &[
         ("BEAMS", "Sonar beams.", beams),
-        ("BEAMS_PER_COLUMN", "Adjacent beams averaged into one input column.", group),
+        (
+            "BEAMS_PER_COLUMN",
+            "Adjacent beams averaged into one input column.",
+            group,
+        ),
         ("INPUT_RANGE_BINS", "Input range bins R.", r),
         ("INPUT_COLUMNS", "Input beam columns B.", b),
         ("FEATURE_CHANNELS", "Feature channels C.", c),
@@ -194,41 +252,131 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         ("DEPTH_ROWS", "Depth map elevation rows E.", e),
         ("DEPTH_COLUMNS", "Depth map azimuth columns A.", a),
         ("DEPTH_RANGE_BINS", "Range bins of the soft-argmax.", dr),
-        ("VIEWS", "Views used by default, reference included.", spec.baseline.views as usize),
-        ("MAX_VIEWS", "Most views supported, reference included.", views),
+        (
+            "VIEWS",
+            "Views used by default, reference included.",
+            spec.baseline.views as usize,
+        ),
+        (
+            "MAX_VIEWS",
+            "Most views supported, reference included.",
+            views,
+        ),
         ("LAYER_COUNT", "Layers in the network.", layer_count),
-        ("MAX_FEATURE_ACTIVATION", "Largest activation of the feature net, elements.", max_feature_act),
-        ("MAX_COST_ACTIVATION", "Largest activation of the cost net, elements.", max_cost_act),
-        ("COST_VOLUME_LEN", "Cost volume elements C × N × R/4 × B/4.", c * n * fr * fb),
-        ("FEATURE_LEN", "Feature map elements C × R/4 × B/4.", c * fr * fb),
+        (
+            "MAX_FEATURE_ACTIVATION",
+            "Largest activation of the feature net, elements.",
+            max_feature_act,
+        ),
+        (
+            "MAX_COST_ACTIVATION",
+            "Largest activation of the cost net, elements.",
+            max_cost_act,
+        ),
+        (
+            "COST_VOLUME_LEN",
+            "Cost volume elements C × N × R/4 × B/4.",
+            c * n * fr * fb,
+        ),
+        (
+            "FEATURE_LEN",
+            "Feature map elements C × R/4 × B/4.",
+            c * fr * fb,
+        ),
         ("INPUT_LEN", "Input image elements R × B.", r * b),
         ("DEPTH_LEN", "Depth map elements E × A.", e * a),
     ];
     for (name, doc, v) in consts {
         writeln!(s, "/// {doc}\npub const {name}: usize = {v};").unwrap();
     }
-    writeln!(s, "/// Bits of the warp table's bilinear fraction.\npub const WARP_FRACTION_BITS: u32 = {};", spec.warp.fraction_bits).unwrap();
+    writeln!(
+        s,
+        "/// Bits of the warp table's bilinear fraction.\npub const WARP_FRACTION_BITS: u32 = {};",
+        spec.warp.fraction_bits
+    )
+    .unwrap();
     let fconsts: &[(&str, &str, f64)] = &[
-        ("R_MIN_M", "Start of the range window, metres.", spec.range_window.r_min_m),
-        ("R_MAX_M", "End of the range window, metres.", spec.range_window.r_max_m),
-        ("HALF_ELEVATION_RAD", "Half the elevation aperture, radians.", half),
-        ("ROLL_STEP_DEG", "Roll between consecutive views, degrees.", spec.baseline.roll_step_deg),
-        ("PAIR_TOLERANCE_DEG", "Roll tolerance for pairing frames, degrees.", spec.baseline.pair_tolerance_deg),
+        (
+            "R_MIN_M",
+            "Start of the range window, metres.",
+            spec.range_window.r_min_m,
+        ),
+        (
+            "R_MAX_M",
+            "End of the range window, metres.",
+            spec.range_window.r_max_m,
+        ),
+        (
+            "HALF_ELEVATION_RAD",
+            "Half the elevation aperture, radians.",
+            half,
+        ),
+        (
+            "ROLL_STEP_DEG",
+            "Roll between consecutive views, degrees.",
+            spec.baseline.roll_step_deg,
+        ),
+        (
+            "PAIR_TOLERANCE_DEG",
+            "Roll tolerance for pairing frames, degrees.",
+            spec.baseline.pair_tolerance_deg,
+        ),
     ];
     for (name, doc, v) in fconsts {
         writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
     }
-    writeln!(s, "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};", lever).unwrap();
-    s += &array_f64("BEAM_CENTRES_DEG", "Beam centres of the sonar's table, degrees, beam 0 first.", beam_deg);
-    s += &array_f64("INPUT_COLUMN_AZIMUTH_RAD", "Azimuth of each input column (and depth column), radians.", &input_az);
-    s += &array_f64("FEATURE_COLUMN_AZIMUTH_RAD", "Azimuth of each feature column, radians.", &feature_az);
-    s += &array_f64("PLANE_ELEVATION_RAD", "Elevation of each virtual plane, radians.", &planes);
-    s += &array_f64("DEPTH_ROW_ELEVATION_RAD", "Elevation of each depth-map row, radians.", &rows);
-    s += &array_f64("DEPTH_BIN_RANGE_M", "Range value of each soft-argmax bin, metres.", &depth_bins);
-    s += &array_f64("INPUT_RANGE_M", "Centre range of each input range bin, metres.", &input_ranges);
-    s += &array_f64("FEATURE_RANGE_M", "Centre range of each feature range bin, metres.", &feature_ranges);
+    writeln!(
+        s,
+        "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};",
+        lever
+    )
+    .unwrap();
+    s += &array_f64(
+        "BEAM_CENTRES_DEG",
+        "Beam centres of the sonar's table, degrees, beam 0 first.",
+        beam_deg,
+    );
+    s += &array_f64(
+        "INPUT_COLUMN_AZIMUTH_RAD",
+        "Azimuth of each input column (and depth column), radians.",
+        &input_az,
+    );
+    s += &array_f64(
+        "FEATURE_COLUMN_AZIMUTH_RAD",
+        "Azimuth of each feature column, radians.",
+        &feature_az,
+    );
+    s += &array_f64(
+        "PLANE_ELEVATION_RAD",
+        "Elevation of each virtual plane, radians.",
+        &planes,
+    );
+    s += &array_f64(
+        "DEPTH_ROW_ELEVATION_RAD",
+        "Elevation of each depth-map row, radians.",
+        &rows,
+    );
+    s += &array_f64(
+        "DEPTH_BIN_RANGE_M",
+        "Range value of each soft-argmax bin, metres.",
+        &depth_bins,
+    );
+    s += &array_f64(
+        "INPUT_RANGE_M",
+        "Centre range of each input range bin, metres.",
+        &input_ranges,
+    );
+    s += &array_f64(
+        "FEATURE_RANGE_M",
+        "Centre range of each feature range bin, metres.",
+        &feature_ranges,
+    );
     s += &layers;
-    write!(s, "/// Every layer in execution order.\npub static LAYERS: [LayerShape; LAYER_COUNT] = [").unwrap();
+    write!(
+        s,
+        "/// Every layer in execution order.\npub static LAYERS: [LayerShape; LAYER_COUNT] = ["
+    )
+    .unwrap();
     for nm in &names {
         write!(s, "LAYER_{}, ", nm.to_uppercase()).unwrap();
     }
