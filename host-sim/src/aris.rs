@@ -927,18 +927,20 @@ impl<R: Read + Seek> ArisReader<R> {
 
         match beam_table_for(first.system_type, beams, first.telephoto()) {
             Ok(t) if t.name == "ARIS3000_128" => {}
-            Ok(t) => {
-                warnings.push(format!(
-                "geometry: {}{} with {beams} beams (beam table {}, {:.2}° … {:.2}°) is not the \
+            Ok(t) => warnings.push(format!(
+                "geometry: {}{}, {beams} beams (beam table {}, {:.2}° … {:.2}°) is not the \
                  ARIS 3000 / 128-beam geometry of the epssn model; depth from this recording \
                  would use mismatched geometry",
                 first.system_type,
-                if first.telephoto() { " with telephoto lens" } else { "" },
+                if first.telephoto() {
+                    ", telephoto lens"
+                } else {
+                    ""
+                },
                 t.name,
                 t.centre_span_deg().0,
                 t.centre_span_deg().1,
-            ))
-            }
+            )),
             Err(e) => warnings.push(format!("geometry: {e}")),
         }
 
@@ -1126,21 +1128,22 @@ fn check_frame(
     if let Err(e) = h.range_geometry(samples as usize) {
         tally.note(format!("range geometry unavailable ({e})"), i);
     }
-    let floats: [(&str, f32); 7] = [
-        ("SoundSpeed", h.sound_speed_m_s),
-        ("WindowStart", h.window_start_m),
-        ("WindowLength", h.window_length_m),
-        ("SampleRate", h.sample_rate_hz),
-        ("Roll (platform)", h.platform_roll_deg),
-        ("SonarRoll (no rotator roll recorded)", h.sonar_roll_deg),
+    let floats: [(&str, &str, f32); 7] = [
+        ("SoundSpeed", "", h.sound_speed_m_s),
+        ("WindowStart", "", h.window_start_m),
+        ("WindowLength", "", h.window_length_m),
+        ("SampleRate", "", h.sample_rate_hz),
+        ("Roll", " (platform roll unknown)", h.platform_roll_deg),
+        ("SonarRoll", " (no rotator roll recorded)", h.sonar_roll_deg),
         (
-            "RollAbsPosition (no rotator roll encoder)",
+            "RollAbsPosition",
+            " (no rotator roll encoder)",
             h.roll_abs_position_deg,
         ),
     ];
-    for (name, v) in floats {
+    for (name, note, v) in floats {
         if v.is_nan() {
-            tally.note(format!("{name} is NaN"), i);
+            tally.note(format!("{name} is NaN{note}"), i);
         } else if v.is_infinite() {
             tally.note(format!("{name} is infinite"), i);
         }

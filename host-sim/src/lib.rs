@@ -5,3 +5,4 @@
 
 pub mod aris;
 pub mod beams;
+pub mod inspect;
