@@ -287,7 +287,7 @@ mod tests {
             "2000-03-01 01:02:03.000042 UTC"
         );
         assert_eq!(
-            format_time_us(951_782_400_000_000 - 1),
+            format_time_us(951_868_800_000_000 - 1),
             "2000-02-29 23:59:59.999999 UTC"
         );
         // Must not panic at the extreme.
