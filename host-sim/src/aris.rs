@@ -12,6 +12,28 @@
 //! The reader trusts nothing in the file: the frame count comes from the file length, sizes
 //! are checked before any arithmetic, and samples are read per frame on demand, so multi-GB
 //! recordings cost one 1 KiB header read per frame at open.
+//!
+//! ```
+//! use host_sim::aris::{write_recording, ArisReader, FrameHeader};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let dir = tempfile::tempdir()?;
+//! let path = dir.path().join("view1.aris");
+//! // One ARIS 3000 frame, 128 beams × 512 samples of 3 mm (4 µs at 1500 m/s), window from
+//! // 2.0 m (2667 µs), rolled by 7°.
+//! let header = FrameHeader::new_aris3000(128, 512, 4, 2667, 1500.0)?.with_roll_deg(7.0);
+//! let samples = vec![0u8; 128 * 512]; // data[sample * 128 + beam]
+//! write_recording(&path, &[(&header, &samples)])?;
+//!
+//! let reader = ArisReader::open(&path)?;
+//! let frame = reader.frame(0)?;
+//! let ranges = frame.range_geometry()?; // epssn::geometry::SampleRanges
+//! assert!((ranges.start - 2.00025).abs() < 1e-9 && (ranges.step - 0.003).abs() < 1e-12);
+//! assert_eq!(frame.header.sonar_roll_deg, 7.0);
+//! assert_eq!(reader.beam_centres_rad()?.len(), 128);
+//! # Ok(())
+//! # }
+//! ```
 
 use std::fmt;
 use std::fs::File;
@@ -726,18 +748,30 @@ impl Frame {
 #[derive(Default)]
 struct Tally {
     entries: Vec<(String, usize, usize)>, // (message, count, first frame)
+    dropped: usize,
 }
 
 impl Tally {
+    /// Distinct messages kept; a corrupt file could otherwise yield one per frame.
+    const MAX_DISTINCT: usize = 32;
+
     fn note(&mut self, message: String, frame: usize) {
         if let Some(e) = self.entries.iter_mut().find(|e| e.0 == message) {
             e.1 += 1;
-        } else {
+        } else if self.entries.len() < Self::MAX_DISTINCT {
             self.entries.push((message, 1, frame));
+        } else {
+            self.dropped += 1;
         }
     }
 
     fn into_warnings(self, frames: usize, out: &mut Vec<String>) {
+        if self.dropped > 0 {
+            out.push(format!(
+                "{} further frame-header anomalies not listed",
+                self.dropped
+            ));
+        }
         for (message, count, first) in self.entries {
             if count == 1 {
                 out.push(format!("frame {first}: {message}"));
@@ -1231,7 +1265,11 @@ impl<W: Write + Seek> ArisWriter<W> {
         self.sink.write_all(data)?;
         self.geometry = Some((beams, samples));
         self.frames += 1;
-        self.bytes += (HEADER_LEN + expected) as u64;
+        // expected ≤ 128 × MAX_SAMPLES_PER_BEAM, so the frame length fits; the total is checked.
+        self.bytes = self
+            .bytes
+            .checked_add((HEADER_LEN + expected) as u64)
+            .ok_or_else(|| ArisError::SizeOverflow("file size".into()))?;
         Ok(())
     }
 
@@ -1257,6 +1295,24 @@ impl<W: Write + Seek> ArisWriter<W> {
         self.sink.flush()?;
         Ok(self.sink)
     }
+}
+
+/// Writes a whole recording: a file header derived from the first frame (DDF_05 signature,
+/// NumRawBeams, SamplesPerChannel) and every frame. The simulator's one-frame views use this.
+pub fn write_recording(path: impl AsRef<Path>, frames: &[(&FrameHeader, &[u8])]) -> Result<()> {
+    let (beams, samples) = match frames.first() {
+        Some((h, _)) => (
+            h.ping_mode_beams().unwrap_or(0) as u32, // ≤ 128
+            h.samples_per_beam,
+        ),
+        None => (0, 0),
+    };
+    let mut w = ArisWriter::create(path, &FileHeader::new(beams, samples))?;
+    for (header, data) in frames {
+        w.write_frame(header, data)?;
+    }
+    w.finish()?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -1399,6 +1455,36 @@ mod tests {
             r.frame(3),
             Err(ArisError::FrameIndexOutOfRange { index: 3, count: 3 })
         ));
+    }
+
+    #[test]
+    fn distinct_warnings_are_capped() {
+        let mut t = Tally::default();
+        for i in 0..100 {
+            t.note(format!("odd value {i}"), i);
+            t.note("same".into(), i);
+        }
+        let mut out = Vec::new();
+        t.into_warnings(100, &mut out);
+        assert_eq!(out.len(), Tally::MAX_DISTINCT + 1);
+        assert!(out
+            .iter()
+            .any(|w| w == "same in 100 of 100 frames (first: frame 0)"));
+        assert!(out[0].starts_with("69 further"), "{}", out[0]);
+    }
+
+    #[test]
+    fn write_recording_builds_a_consistent_file_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("one.aris");
+        let h = FrameHeader::new_aris3000(64, 30, 4, 0, 1500.0).unwrap();
+        write_recording(&path, &[(&h, &[9u8; 64 * 30])]).unwrap();
+        let r = ArisReader::open(&path).unwrap();
+        assert_eq!(r.file_header().num_raw_beams, 64);
+        assert_eq!(r.file_header().samples_per_channel, 30);
+        assert_eq!(r.frame(0).unwrap().data, vec![9u8; 64 * 30]);
+        assert_eq!(r.beam_table().unwrap().name, "ARIS3000_64");
+        assert!(write_recording(&path, &[(&h, &[0u8; 3])]).is_err());
     }
 
     #[test]
