@@ -943,6 +943,7 @@ impl<R: Read + Seek> ArisReader<R> {
 
         let mut tally = Tally::default();
         check_frame(&first, &first, 0, beams, samples, &mut tally);
+        let mut previous_time_us = first.frame_time_us;
         for i in 1..frame_count {
             let offset = (i as u64)
                 .checked_mul(frame_len)
@@ -956,6 +957,10 @@ impl<R: Read + Seek> ArisReader<R> {
             )?;
             let h = FrameHeader::from_bytes(&raw);
             check_frame(&first, &h, i, beams, samples, &mut tally);
+            if h.frame_time_us < previous_time_us {
+                tally.note("FrameTime goes backwards".into(), i);
+            }
+            previous_time_us = h.frame_time_us;
         }
         tally.into_warnings(frame_count.max(1), &mut warnings);
 

@@ -321,6 +321,27 @@ fn ping_mode_contradicting_the_beam_count() {
     let r = open_bytes(b).unwrap();
     let w = r.warnings().join("\n");
     assert!(w.contains("frame 3: PingMode 7 implies 64 beams"), "{w}");
+    assert!(
+        !w.contains("FrameTime"),
+        "the real recording's clock is monotonic: {w}"
+    );
+}
+
+#[test]
+fn later_frame_anomalies_are_warnings_naming_the_frame() {
+    let mut b = real_bytes();
+    put_u32(&mut b, frame_start(2) + 468, 1999); // SamplesPerBeam
+    put_u32(&mut b, frame_start(4), 40); // FrameIndex
+    let t3 = u64_at(&b, frame_start(3) + 4);
+    b[frame_start(5) + 4..frame_start(5) + 12].copy_from_slice(&(t3 - 1).to_le_bytes());
+    put_u32(&mut b, frame_start(1) + 516, 0); // ReorderedSamples
+    let r = open_bytes(b).unwrap();
+    assert_eq!(r.frame_count(), 6);
+    let w = r.warnings().join("\n");
+    assert!(w.contains("frame 2: SamplesPerBeam 1999 differs"), "{w}");
+    assert!(w.contains("frame 4: FrameIndex does not match"), "{w}");
+    assert!(w.contains("frame 5: FrameTime goes backwards"), "{w}");
+    assert!(w.contains("frame 1: ReorderedSamples is 0"), "{w}");
 }
 
 #[test]
