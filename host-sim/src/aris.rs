@@ -917,7 +917,7 @@ impl<R: Read + Seek> ArisReader<R> {
             .checked_mul(samples_per_beam as u64)
             .and_then(|d| d.checked_add(HEADER_LEN as u64))
             .ok_or_else(|| ArisError::SizeOverflow("frame size".into()))?;
-        let body = source_len - HEADER_LEN as u64; // source_len ≥ 2048 here
+        let body = source_len.saturating_sub(HEADER_LEN as u64); // ≥ 1024 here
         let complete = body / frame_len;
         let remainder = body % frame_len;
         let frame_count = usize::try_from(complete)
