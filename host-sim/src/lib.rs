@@ -2,3 +2,7 @@
 //! training, the quantiser, and software-in-the-loop runs of the firmware.
 
 #![deny(missing_docs)]
+
+pub mod aris;
+pub mod beams;
+pub mod inspect;

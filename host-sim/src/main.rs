@@ -1,1 +1,33 @@
-fn main() {}
+//! `host-sim`: command-line entry; each subcommand lives in its own library module.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "host-sim", version, about = "epssn host tools")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
+    Inspect(host_sim::inspect::InspectArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let stdout = std::io::stdout();
+    let result = match cli.command {
+        Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("host-sim: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
