@@ -6,3 +6,4 @@
 pub mod aris;
 pub mod beams;
 pub mod inspect;
+pub mod spec;
