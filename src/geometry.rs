@@ -330,7 +330,7 @@ pub fn resample_to_grid(
     if out.len() != range_bins * columns {
         return Err(ResampleError::OutputSize);
     }
-    if !(ranges.step > 0.0) {
+    if ranges.step.is_nan() || ranges.step <= 0.0 {
         return Err(ResampleError::RangeStep);
     }
     let bin = (grid.r_max - grid.r_min) / range_bins as f64;

@@ -35,4 +35,6 @@ pub mod config;
 pub mod crc32;
 pub mod geometry;
 pub mod grids;
+pub mod kernels;
+pub mod requant;
 pub mod spec;

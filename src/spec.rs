@@ -187,8 +187,12 @@ impl LayerSpec {
             let p = *self.padding.get(axis).unwrap_or(&0) as usize;
             let op = *self.output_padding.get(axis).unwrap_or(&0) as usize;
             let o = match self.kind {
-                LayerKind::Conv2d | LayerKind::Conv3d => (n + 2 * p).saturating_sub(k) / s.max(1) + 1,
-                LayerKind::ConvTranspose3d => ((n.saturating_sub(1)) * s + k + op).saturating_sub(2 * p),
+                LayerKind::Conv2d | LayerKind::Conv3d => {
+                    (n + 2 * p).saturating_sub(k) / s.max(1) + 1
+                }
+                LayerKind::ConvTranspose3d => {
+                    ((n.saturating_sub(1)) * s + k + op).saturating_sub(2 * p)
+                }
             };
             let _ = out.push(o);
         }
