@@ -6,4 +6,6 @@
 pub mod aris;
 pub mod beams;
 pub mod inspect;
+pub mod intref;
+pub mod quantise;
 pub mod spec;
