@@ -5,7 +5,10 @@
 
 pub mod aris;
 pub mod beams;
+pub mod floatref;
 pub mod inspect;
 pub mod intref;
+pub mod polar;
 pub mod quantise;
+pub mod reference_model;
 pub mod spec;
