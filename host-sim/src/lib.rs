@@ -12,3 +12,4 @@ pub mod polar;
 pub mod quantise;
 pub mod reference_model;
 pub mod spec;
+pub mod synthetic;

@@ -15,6 +15,8 @@ struct Cli {
 enum Command {
     /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
     Inspect(host_sim::inspect::InspectArgs),
+    /// Quantise float weights into the int8 blob the library and firmware run.
+    Quantise(host_sim::quantise::QuantiseArgs),
 }
 
 fn main() -> ExitCode {
@@ -22,6 +24,7 @@ fn main() -> ExitCode {
     let stdout = std::io::stdout();
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
+        Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

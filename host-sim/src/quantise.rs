@@ -440,3 +440,46 @@ mod tests {
         assert_eq!(t[20], (65535.0 * (-1.0f64).exp()).round() as u16);
     }
 }
+
+/// `host-sim quantise`: float weights + calibration data → blob and manifest.
+#[derive(clap::Args, Debug)]
+pub struct QuantiseArgs {
+    /// Quantise an untrained, He-initialised model with this seed (for bit-exactness runs and
+    /// benchmarks before trained weights exist).
+    #[arg(long)]
+    pub random_init: Option<u64>,
+    /// Number of calibration inputs.
+    #[arg(long, default_value_t = 8)]
+    pub calibration_samples: usize,
+    /// Output folder for the blob and `quantisation.json`.
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+}
+
+/// Runs `host-sim quantise`.
+pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
+    let Some(seed) = args.random_init else {
+        bail!("give --random-init SEED (quantising trained weights needs the float model)");
+    };
+    let weights = crate::synthetic::random_float_weights(seed);
+    let mut rng = crate::synthetic::Rng(seed ^ 0x5EED);
+    let traces = (0..args.calibration_samples.max(1))
+        .map(|s| {
+            let a = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37);
+            let b = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37 + 0.1);
+            crate::floatref::run(&weights, &[&a, &b])
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
+    write(&args.out, &q)?;
+    writeln!(
+        out,
+        "wrote {} ({} bytes, spec {} {:#010x}) and quantisation.json to {}",
+        BLOB_FILE,
+        q.blob.len(),
+        config::SPEC_NAME,
+        q.spec_hash,
+        args.out.display()
+    )?;
+    Ok(())
+}
