@@ -4,8 +4,9 @@
 //! - the weight blob in flash passes the library's loader (CRC, spec hash, shapes, bounds);
 //! - the warp tables in flash equal a recomputation from the same geometry code;
 //! - a fixed pair of images gives exactly the depth map the library computed on x86
-//!   (the golden vector from `build.rs`),
-//! and reports instruction counts per layer. The result and exit code go out through
+//!   (the golden vector from `build.rs`).
+//!
+//! It reports instruction counts per layer. The result and exit code go out through
 //! semihosting.
 
 #![no_std]
