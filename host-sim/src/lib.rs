@@ -5,4 +5,12 @@
 
 pub mod aris;
 pub mod beams;
+pub mod dataset;
+pub mod groundtruth;
 pub mod inspect;
+pub mod metrics;
+pub mod npy;
+pub mod preview;
+pub mod render;
+pub mod scene;
+pub mod simulate;

@@ -15,6 +15,10 @@ struct Cli {
 enum Command {
     /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
     Inspect(host_sim::inspect::InspectArgs),
+    /// Simulate sonar scenes with exact ground truth into sample folders.
+    Simulate(host_sim::simulate::SimulateArgs),
+    /// MAE and chamfer distance between two depth maps (.npy).
+    Metrics(host_sim::metrics::MetricsArgs),
 }
 
 fn main() -> ExitCode {
@@ -22,6 +26,8 @@ fn main() -> ExitCode {
     let stdout = std::io::stdout();
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
+        Command::Simulate(args) => host_sim::simulate::run(&args),
+        Command::Metrics(args) => host_sim::metrics::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
