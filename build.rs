@@ -9,6 +9,8 @@
 mod crc32;
 #[path = "src/geometry.rs"]
 mod geometry;
+#[path = "src/grids.rs"]
+mod grids;
 #[path = "src/spec.rs"]
 mod spec;
 
@@ -24,6 +26,7 @@ fn main() {
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
     println!("cargo:rerun-if-changed=src/geometry.rs");
     println!("cargo:rerun-if-changed=src/spec.rs");
+    println!("cargo:rerun-if-changed=src/grids.rs");
     let spec_bytes = std::fs::read(&spec_path)
         .unwrap_or_else(|e| panic!("cannot read model spec {}: {e}", spec_path.display()));
     let spec: spec::ModelSpec = serde_json::from_slice(&spec_bytes)
@@ -109,25 +112,15 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         spec.baseline.views >= 2 && spec.baseline.views <= spec.baseline.max_views,
         "views within 2..=max_views",
     );
-    let half = geometry::deg_to_rad(spec.sonar.elevation_half_aperture_deg);
-    let beam_rad: Vec<f64> = beam_deg.iter().map(|d| geometry::deg_to_rad(*d)).collect();
-    let input_az: Vec<f64> = (0..b)
-        .map(|k| geometry::grouped_azimuth(&beam_rad, group, k))
-        .collect();
-    let feature_az: Vec<f64> = (0..fb)
-        .map(|k| geometry::grouped_azimuth(&input_az, stride, k))
-        .collect();
-    let grid = geometry::Grid {
-        r_min: spec.range_window.r_min_m,
-        r_max: spec.range_window.r_max_m,
-        half_elevation: half,
-        column_azimuths: &input_az,
-    };
-    let planes: Vec<f64> = (0..n).map(|j| grid.elevation(j, n)).collect();
-    let rows: Vec<f64> = (0..e).map(|j| grid.elevation(j, e)).collect();
-    let depth_bins: Vec<f64> = (0..dr).map(|i| grid.depth_bin_value(i, dr)).collect();
-    let input_ranges: Vec<f64> = (0..r).map(|i| grid.range_bin_centre(i, r)).collect();
-    let feature_ranges: Vec<f64> = (0..fr).map(|i| grid.range_bin_centre(i, fr)).collect();
+    let g = grids::ModelGrids::derive(spec, beam_deg).expect("model spec grids");
+    let half = g.half_elevation;
+    let (input_az, feature_az) = (&g.input_azimuths, &g.feature_azimuths);
+    let (planes, rows, depth_bins) = (
+        &g.plane_elevations,
+        &g.depth_row_elevations,
+        &g.depth_bin_ranges,
+    );
+    let (input_ranges, feature_ranges) = (&g.input_ranges, &g.feature_ranges);
 
     // Layer shapes, chained from the input / cost-volume sizes.
     let mut layers = String::new();
@@ -178,7 +171,6 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
 
     // Warp tables, one per extra view.
     let views = spec.baseline.max_views as usize;
-    let lever = spec.baseline.lever_arm_m;
     let mut warp = String::new();
     writeln!(
         warp,
@@ -188,24 +180,7 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     )
     .unwrap();
     for k in 1..views {
-        let t = geometry::RigidTransform::rolled_about_axis(
-            spec.baseline.roll_step_deg * k as f64,
-            lever,
-        );
-        check(
-            t.preserves_range(),
-            "a lever arm needs the range-dependent warp table, which the library does not run yet",
-        );
-        let mut table = vec![geometry::WarpEntry::default(); n * fb];
-        geometry::warp_table_pure_roll(
-            &t,
-            &feature_az,
-            &planes,
-            half,
-            spec.warp.fraction_bits,
-            &mut table,
-        )
-        .expect("warp table");
+        let table = g.warp_table(spec, k).expect("warp table (a lever arm needs the range-dependent table, which the library does not run yet)");
         warp.push_str("    [\n");
         for en in &table {
             writeln!(
@@ -325,10 +300,24 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     for (name, doc, v) in fconsts {
         writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
     }
+    // Soft-argmax depth constants in unsigned Q16.16 metres (docs/QUANTISATION.md).
+    let q16 = |x: f64| (x * 65536.0).round() as u32;
+    writeln!(
+        s,
+        "/// `round(r_min · 2^16)`: depth of soft-argmax bin 0, Q16.16 metres.\npub const R_MIN_Q16: u32 = {};",
+        q16(spec.range_window.r_min_m)
+    )
+    .unwrap();
+    writeln!(
+        s,
+        "/// `round((r_max − r_min) / (bins − 1) · 2^16)`: step between soft-argmax bins.\npub const DEPTH_STEP_Q16: u32 = {};",
+        q16((spec.range_window.r_max_m - spec.range_window.r_min_m) / (dr as f64 - 1.0))
+    )
+    .unwrap();
     writeln!(
         s,
         "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};",
-        lever
+        spec.baseline.lever_arm_m
     )
     .unwrap();
     s += &array_f64(
@@ -339,37 +328,37 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     s += &array_f64(
         "INPUT_COLUMN_AZIMUTH_RAD",
         "Azimuth of each input column (and depth column), radians.",
-        &input_az,
+        input_az,
     );
     s += &array_f64(
         "FEATURE_COLUMN_AZIMUTH_RAD",
         "Azimuth of each feature column, radians.",
-        &feature_az,
+        feature_az,
     );
     s += &array_f64(
         "PLANE_ELEVATION_RAD",
         "Elevation of each virtual plane, radians.",
-        &planes,
+        planes,
     );
     s += &array_f64(
         "DEPTH_ROW_ELEVATION_RAD",
         "Elevation of each depth-map row, radians.",
-        &rows,
+        rows,
     );
     s += &array_f64(
         "DEPTH_BIN_RANGE_M",
         "Range value of each soft-argmax bin, metres.",
-        &depth_bins,
+        depth_bins,
     );
     s += &array_f64(
         "INPUT_RANGE_M",
         "Centre range of each input range bin, metres.",
-        &input_ranges,
+        input_ranges,
     );
     s += &array_f64(
         "FEATURE_RANGE_M",
         "Centre range of each feature range bin, metres.",
-        &feature_ranges,
+        feature_ranges,
     );
     s += &layers;
     write!(

@@ -4,6 +4,9 @@
 //! or the file named by the `EPSSN_SPEC` environment variable at build time): the one place
 //! where the library's sizes are written.
 
+// The generated tables hold measured numbers, some of which happen to be close to π.
+#![allow(clippy::approx_constant)]
+
 pub use crate::geometry::WarpEntry;
 pub use crate::spec::LayerKind;
 

@@ -198,7 +198,7 @@ impl RigidTransform {
 /// than two points. The result's integer part is at most `n − 2`, its fraction in `[0, 1]`.
 pub fn fractional_index(xs: &[f64], x: f64) -> Option<(usize, f64)> {
     let n = xs.len();
-    if n < 2 || !(x >= xs[0] && x <= xs[n - 1]) {
+    if n < 2 || x.is_nan() || x < xs[0] || x > xs[n - 1] {
         return None;
     }
     // Binary search for the segment [xs[i], xs[i+1]] holding x.
@@ -330,7 +330,7 @@ pub fn resample_to_grid(
     if out.len() != range_bins * columns {
         return Err(ResampleError::OutputSize);
     }
-    if !(ranges.step > 0.0) {
+    if ranges.step.is_nan() || ranges.step <= 0.0 {
         return Err(ResampleError::RangeStep);
     }
     let bin = (grid.r_max - grid.r_min) / range_bins as f64;

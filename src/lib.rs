@@ -31,7 +31,9 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod blob;
 pub mod config;
 pub mod crc32;
 pub mod geometry;
+pub mod grids;
 pub mod spec;

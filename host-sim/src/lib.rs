@@ -14,3 +14,4 @@ pub mod preview;
 pub mod render;
 pub mod scene;
 pub mod simulate;
+pub mod spec;
