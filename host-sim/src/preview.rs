@@ -41,7 +41,7 @@ pub fn sonar_palette(v: u8) -> [u8; 3] {
 }
 
 /// Pixel size of the fan drawing, metres.
-const FAN_RES_M: f64 = 0.005;
+const FAN_RES_M: f64 = 0.008;
 
 /// Draws a polar image (R × B, `img[i × B + k]`) as a fan seen from above: forward is up, the
 /// sonar's left is left.

@@ -343,3 +343,64 @@ fn sphere_returns_appear_at_the_ground_truth_range() {
         assert!(checked > 3, "only {checked} columns checked");
     }
 }
+
+#[test]
+fn rendering_does_not_depend_on_the_thread_count() {
+    let scene = generate(SceneKind::Artificial, Split::Train, 2, 5, 3);
+    let params = SonarSimParams::default();
+    let many = simulate_scene(&scene, &params).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let one = pool.install(|| simulate_scene(&scene, &params).unwrap());
+    assert_eq!(many.frames.len(), 3);
+    assert_eq!(many.frames, one.frames);
+    assert_eq!(many.depth, one.depth);
+}
+
+#[test]
+fn elevation_map_puts_floor_returns_on_the_floor() {
+    // A bare floor seen from 1 m up, tilted 20° down: every (range, azimuth) cell has one
+    // elevation, so the mean elevation of each pixel must reconstruct a point at z = 0.
+    let scene = host_sim::scene::Scene {
+        kind: SceneKind::Artificial,
+        split: Split::Test,
+        index: 0,
+        seed: 0,
+        sample_seed: 77,
+        sonar: SonarPose {
+            position_m: [0.0, 0.0, 1.0],
+            yaw_deg: 0.0,
+            tilt_deg: 20.0,
+        },
+        view_rolls_deg: vec![0.0, 7.0],
+        objects: vec![host_sim::scene::Object::Plane {
+            name: "floor".into(),
+            point_m: [0.0; 3],
+            normal: [0.0, 0.0, 1.0],
+            reflectivity: 0.4,
+        }],
+    };
+    let data = simulate_scene(&scene, &SonarSimParams::default()).unwrap();
+    let wfr = scene.sonar.world_from_reference();
+    let bin = (R_MAX_M - R_MIN_M) / 256.0;
+    let mut checked = 0;
+    for i in 0..256 {
+        for k in 0..64 {
+            let el = data.elevation[i * 64 + k];
+            if !el.is_finite() {
+                continue;
+            }
+            let p = wfr.apply(polar_to_cartesian(Polar {
+                range: R_MIN_M + (i as f64 + 0.5) * bin,
+                azimuth: INPUT_COLUMN_AZIMUTH_RAD[k],
+                elevation: el as f64,
+            }));
+            assert!(p[2].abs() < 0.01, "pixel ({i}, {k}): z = {}", p[2]);
+            checked += 1;
+        }
+    }
+    // The floor fills the lower part of the aperture across the window.
+    assert!(checked > 256 * 64 / 4, "only {checked} pixels with returns");
+}
