@@ -17,6 +17,10 @@ enum Command {
     Inspect(host_sim::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
     Quantise(host_sim::quantise::QuantiseArgs),
+    /// Simulate sonar scenes with exact ground truth into sample folders.
+    Simulate(host_sim::simulate::SimulateArgs),
+    /// MAE and chamfer distance between two depth maps (.npy).
+    Metrics(host_sim::metrics::MetricsArgs),
 }
 
 fn main() -> ExitCode {
@@ -25,6 +29,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
         Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
+        Command::Simulate(args) => host_sim::simulate::run(&args),
+        Command::Metrics(args) => host_sim::metrics::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
