@@ -404,3 +404,65 @@ fn elevation_map_puts_floor_returns_on_the_floor() {
     // The floor fills the lower part of the aperture across the window.
     assert!(checked > 256 * 64 / 4, "only {checked} pixels with returns");
 }
+
+#[test]
+fn cli_simulate_three_views_and_metrics_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_host-sim");
+    let out = dir.path().to_str().unwrap();
+    let st = std::process::Command::new(exe)
+        .args([
+            "simulate", "--scene", "sphere", "--pairs", "2", "--seed", "5",
+        ])
+        .args([
+            "--out",
+            out,
+            "--split",
+            "test",
+            "--views",
+            "3",
+            "--no-preview",
+        ])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let s0 = Sample::load(&dir.path().join("test/000000")).unwrap();
+    assert_eq!(s0.polar_views.len(), 3);
+    assert_eq!(s0.scene.view_rolls_deg, vec![0.0, 7.0, 14.0]);
+    assert!(dir.path().join("test/000000/view2.aris").exists());
+    assert!(!dir.path().join("test/000000/preview.png").exists());
+    // A map against itself scores zero; against another sample it does not.
+    let gt = dir.path().join("test/000000/depth.npy");
+    let mask = dir.path().join("test/000000/mask.npy");
+    let other = dir.path().join("test/000001/depth.npy");
+    let run = |pred: &Path| -> serde_json::Value {
+        let o = std::process::Command::new(exe)
+            .arg("metrics")
+            .arg(pred)
+            .arg(&gt)
+            .arg("--mask")
+            .arg(&mask)
+            .arg("--json")
+            .output()
+            .unwrap();
+        assert!(o.status.success());
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let same = run(&gt);
+    assert_eq!(same["mae"], 0.0);
+    assert_eq!(same["cd"], 0.0);
+    let valid = s0.mask.iter().filter(|m| **m > 0.5).count();
+    assert_eq!(same["valid_pixels"], valid);
+    let diff = run(&other);
+    assert!(diff["mae"].as_f64().unwrap() > 0.0);
+    assert!(diff["cd"].as_f64().unwrap() > 0.0);
+    // Views 4 is rejected.
+    let st = std::process::Command::new(exe)
+        .args([
+            "simulate", "--scene", "sphere", "--pairs", "1", "--out", out, "--views", "4",
+        ])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(!st.success());
+}
