@@ -36,4 +36,7 @@ pub mod config;
 pub mod crc32;
 pub mod geometry;
 pub mod grids;
+pub mod kernels;
+pub mod model;
+pub mod requant;
 pub mod spec;

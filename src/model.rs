@@ -354,8 +354,7 @@ impl<'a> Model<'a> {
             *q = (u ^ 0x80) as i8; // u − 128
         }
         let mut bufs = [a, b];
-        for i in 0..FEATURE_LAYERS {
-            let l = &LAYERS[i];
+        for (i, l) in LAYERS.iter().enumerate().take(FEATURE_LAYERS) {
             let params = layer_params(l, &self.layers[i], i);
             let shape = ConvShape::from(l);
             let last = i + 1 == FEATURE_LAYERS;
@@ -426,8 +425,7 @@ impl<'a> Model<'a> {
             start: 0,
             len: config::COST_VOLUME_LEN,
         };
-        for i in FEATURE_LAYERS..LAYERS.len() {
-            let l = &LAYERS[i];
+        for (i, l) in LAYERS.iter().enumerate().skip(FEATURE_LAYERS) {
             let p = &self.layers[i];
             let params = layer_params(l, p, i);
             let shape = ConvShape::from(l);

@@ -14,3 +14,5 @@ pub fn model_beam_centres_deg() -> Vec<f64> {
         .map(|l| l.split(',').nth(1).unwrap().trim().parse().unwrap())
         .collect()
 }
+
+pub use host_sim::synthetic::{random_float_weights, synthetic_image, Rng};

@@ -19,6 +19,8 @@ enum Command {
     Simulate(host_sim::simulate::SimulateArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
     Metrics(host_sim::metrics::MetricsArgs),
+    /// Quantise float weights into the int8 blob the library and firmware run.
+    Quantise(host_sim::quantise::QuantiseArgs),
 }
 
 fn main() -> ExitCode {
@@ -28,6 +30,7 @@ fn main() -> ExitCode {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
         Command::Simulate(args) => host_sim::simulate::run(&args),
         Command::Metrics(args) => host_sim::metrics::run(&args),
+        Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -101,9 +101,9 @@ pub fn fold_batch_norm(layer: &FloatLayer, layout: &WeightLayout) -> (Vec<f64>, 
     let mut w: Vec<f64> = layer.weight.iter().map(|&x| x as f64).collect();
     let mut b: Vec<f64> = layer.bias.iter().map(|&x| x as f64).collect();
     if let Some(bn) = &layer.bn {
-        for o in 0..layout.out_channels {
+        for (o, bias) in b.iter_mut().enumerate().take(layout.out_channels) {
             let g = bn.gamma[o] as f64 / (bn.var[o] as f64 + bn.eps).sqrt();
-            b[o] = (b[o] - bn.mean[o] as f64) * g + bn.beta[o] as f64;
+            *bias = (*bias - bn.mean[o] as f64) * g + bn.beta[o] as f64;
             for i in layout.channel_indices(o) {
                 w[i] *= g;
             }
@@ -123,7 +123,10 @@ pub fn quantise_weights(w: &[f64], layout: &WeightLayout) -> (Vec<i8>, Vec<f64>)
     let mut scales = vec![1.0; layout.out_channels];
     let mut q = vec![0i8; w.len()];
     for (o, scale) in scales.iter_mut().enumerate() {
-        let max = layout.channel_indices(o).map(|i| w[i].abs()).fold(0.0, f64::max);
+        let max = layout
+            .channel_indices(o)
+            .map(|i| w[i].abs())
+            .fold(0.0, f64::max);
         if max > 0.0 {
             *scale = max / 127.0;
         }
@@ -232,7 +235,10 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         for o in 0..l.out_channels {
             let bias = round_half_away(b[o] / (s_in * ws[o]));
             if bias.abs() >= 2f64.powi(31) {
-                bail!("layer {} channel {o}: bias {bias} does not fit int32", l.name);
+                bail!(
+                    "layer {} channel {o}: bias {bias} does not fit int32",
+                    l.name
+                );
             }
             qb.push(bias as i32);
             let r = requant(s_in * ws[o] / s_out, l.name)?;
@@ -244,7 +250,11 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
             weights: &qw,
             bias: &qb,
             requant: &rq,
-            input_offset: if index == 0 { epssn::model::INPUT_OFFSET } else { 0 },
+            input_offset: if index == 0 {
+                epssn::model::INPUT_OFFSET
+            } else {
+                0
+            },
             relu: l.relu,
         };
         let bound = epssn::kernels::check_layer_bounds(
@@ -254,16 +264,27 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         )
         .map_err(|e| anyhow!("layer {}: {e:?}", l.name))?;
         if !rq.iter().all(|r| r.fits(bound)) {
-            bail!("layer {}: accumulator bound {bound} overflows after the left shift", l.name);
+            bail!(
+                "layer {}: accumulator bound {bound} overflows after the left shift",
+                l.name
+            );
         }
         let mut skip_m = None;
         if let Some(skip) = l.skip {
             let m = scale(skip)? / s_out;
             let r = requant(m, l.name)?;
-            tensors.push((format!("{}.k", l.name), Dtype::I32, i32_bytes(&[r.multiplier, r.shift])));
+            tensors.push((
+                format!("{}.k", l.name),
+                Dtype::I32,
+                i32_bytes(&[r.multiplier, r.shift]),
+            ));
             skip_m = Some(m);
         }
-        tensors.push((format!("{}.w", l.name), Dtype::I8, qw.iter().map(|&q| q as u8).collect()));
+        tensors.push((
+            format!("{}.w", l.name),
+            Dtype::I8,
+            qw.iter().map(|&q| q as u8).collect(),
+        ));
         tensors.push((format!("{}.b", l.name), Dtype::I32, i32_bytes(&qb)));
         tensors.push((format!("{}.m", l.name), Dtype::I32, i32_bytes(&mult)));
         tensors.push((format!("{}.s", l.name), Dtype::I32, i32_bytes(&shift)));
@@ -286,7 +307,10 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
     let s_cost = scale("cost")?;
     let m2 = s_f * s_f / (4.0 * s_cost);
     let m3 = s_f * s_f / (9.0 * s_cost);
-    let (r2, r3) = (requant(m2, "cost (2 views)")?, requant(m3, "cost (3 views)")?);
+    let (r2, r3) = (
+        requant(m2, "cost (2 views)")?,
+        requant(m3, "cost (3 views)")?,
+    );
     tensors.push((
         "cost.rq".into(),
         Dtype::I32,
@@ -299,16 +323,21 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         Dtype::U16,
         exp.iter().flat_map(|e| e.to_le_bytes()).collect(),
     ));
-    let total: usize = tensors.iter().map(|t| t.2.len() + 4 + epssn::blob::ENTRY_LEN).sum();
+    let total: usize = tensors
+        .iter()
+        .map(|t| t.2.len() + 4 + epssn::blob::ENTRY_LEN)
+        .sum();
     let mut out = vec![0u8; total + epssn::blob::HEADER_LEN + 8];
     let refs: Vec<(&str, Dtype, &[u8])> = tensors
         .iter()
         .map(|(n, d, b)| (n.as_str(), *d, b.as_slice()))
         .collect();
-    let n = write_blob(config::SPEC_HASH, &refs, &mut out).map_err(|e| anyhow!("writing blob: {e:?}"))?;
+    let n = write_blob(config::SPEC_HASH, &refs, &mut out)
+        .map_err(|e| anyhow!("writing blob: {e:?}"))?;
     out.truncate(n);
     // The library must accept what we wrote: the same checks the firmware runs at boot.
-    epssn::model::Model::from_blob(&out).map_err(|e| anyhow!("the library refuses the blob: {e:?}"))?;
+    epssn::model::Model::from_blob(&out)
+        .map_err(|e| anyhow!("the library refuses the blob: {e:?}"))?;
     Ok(Quantised {
         activation_scales: scales,
         layers: reports,
@@ -336,7 +365,10 @@ pub fn write(dir: &std::path::Path, q: &Quantised) -> Result<()> {
         "rounding": "TFLite MultiplyByQuantizedMultiplier (docs/QUANTISATION.md)",
         "quantisation": q,
     });
-    std::fs::write(dir.join("quantisation.json"), serde_json::to_string_pretty(&manifest)?)?;
+    std::fs::write(
+        dir.join("quantisation.json"),
+        serde_json::to_string_pretty(&manifest)?,
+    )?;
     Ok(())
 }
 
@@ -370,8 +402,8 @@ mod tests {
         let (w, b) = fold_batch_norm(&layer, &conv);
         // g = γ/√(σ²+ε) is 1 for both channels here, so only the biases move.
         assert_eq!(w, vec![1.0, 2.0, 3.0, 4.0]);
-        assert!((b[0] - (0.0 * 1.0 + 0.1)).abs() < 1e-12);
-        assert!((b[1] - (-2.0 + 0.2)).abs() < 1e-12);
+        assert!((b[0] - 0.1f32 as f64).abs() < 1e-12);
+        assert!((b[1] - (-2.0 + 0.2f32 as f64)).abs() < 1e-12);
         let mut l2 = layer.clone();
         l2.bn.as_mut().unwrap().gamma = vec![4.0, 3.0];
         let (w, _) = fold_batch_norm(&l2, &conv);
@@ -407,4 +439,47 @@ mod tests {
         assert!(t.windows(2).all(|w| w[1] <= w[0]));
         assert_eq!(t[20], (65535.0 * (-1.0f64).exp()).round() as u16);
     }
+}
+
+/// `host-sim quantise`: float weights + calibration data → blob and manifest.
+#[derive(clap::Args, Debug)]
+pub struct QuantiseArgs {
+    /// Quantise an untrained, He-initialised model with this seed (for bit-exactness runs and
+    /// benchmarks before trained weights exist).
+    #[arg(long)]
+    pub random_init: Option<u64>,
+    /// Number of calibration inputs.
+    #[arg(long, default_value_t = 8)]
+    pub calibration_samples: usize,
+    /// Output folder for the blob and `quantisation.json`.
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+}
+
+/// Runs `host-sim quantise`.
+pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
+    let Some(seed) = args.random_init else {
+        bail!("give --random-init SEED (quantising trained weights needs the float model)");
+    };
+    let weights = crate::synthetic::random_float_weights(seed);
+    let mut rng = crate::synthetic::Rng(seed ^ 0x5EED);
+    let traces = (0..args.calibration_samples.max(1))
+        .map(|s| {
+            let a = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37);
+            let b = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37 + 0.1);
+            crate::floatref::run(&weights, &[&a, &b])
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
+    write(&args.out, &q)?;
+    writeln!(
+        out,
+        "wrote {} ({} bytes, spec {} {:#010x}) and quantisation.json to {}",
+        BLOB_FILE,
+        q.blob.len(),
+        config::SPEC_NAME,
+        q.spec_hash,
+        args.out.display()
+    )?;
+    Ok(())
 }

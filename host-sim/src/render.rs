@@ -19,6 +19,7 @@ use rand_distr::{Exp1, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::aris::FrameHeader;
 use crate::scene::{mix64, Scene, World};
 
 /// Every parameter of the simulated sonar and its image formation.
@@ -96,6 +97,19 @@ impl SonarSimParams {
             samples: self.samples_per_beam,
         }
     }
+}
+
+/// The ARIS 3000 frame header of a simulated view: the recording geometry of `params` and the
+/// view's roll in SonarRoll, TargetRoll and RollAbsPosition.
+pub fn frame_header(params: &SonarSimParams, roll_deg: f64) -> anyhow::Result<FrameHeader> {
+    Ok(FrameHeader::new_aris3000(
+        config::BEAMS,
+        params.samples_per_beam,
+        params.sample_period_us,
+        params.sample_start_delay_us,
+        params.sound_speed_m_s as f32,
+    )?
+    .with_roll_deg(roll_deg as f32))
 }
 
 /// Beam centres of the ARIS3000_128 table, radians, beam 0 (right-most) first.

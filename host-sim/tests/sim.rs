@@ -257,9 +257,11 @@ fn polar_views_come_from_the_aris_files_through_resample_to_grid() {
         let ranges = frame.range_geometry().unwrap();
         assert!(ranges.start <= R_MIN_M);
         assert!(ranges.start + ranges.step * (ranges.samples - 1) as f64 >= R_MAX_M);
-        let polar = polar_image(&frame.data, &params).unwrap();
+        // What any reader of the file gets (its beam table and range geometry).
+        let polar = host_sim::polar::frame_to_polar(&frame).unwrap();
         let f: Vec<f32> = polar.iter().map(|x| *x as f32).collect();
         assert_eq!(f, s.polar_views[k], "view {k}");
+        assert_eq!(polar_image(&frame.data, &params).unwrap(), polar);
     }
     // The elevation map holds elevations inside the aperture where anything returns.
     let finite: Vec<f32> = s

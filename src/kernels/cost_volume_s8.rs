@@ -1,0 +1,374 @@
+//! Plane-sweep warp of the source features and the variance cost volume (QUANTISATION.md
+//! "Warp and cost volume").
+//!
+//! Reference features `[C][H][W]` i8, one or two source feature maps of the same shape and
+//! scale, each with its range-independent warp table `[plane][W]`; output cost volume
+//! `[C][N][H][W]` i8 in `0..=127`. For source entry (`column` c, `fraction` α, `visible`):
+//! `w = (F[c]·(256 − α) + F[c+1]·α + 128) >> 8`, invisible → 0; with `n` views
+//! `X = n·Σv² − (Σv)²` and `q = clamp(MBQM(X, M_n, shift_n), 0, 127)`.
+//!
+//! Work: `C · N · H · W · (n + 2·(n − 1))` multiplies (n views; 2 per bilinear warp).
+
+use super::{expect, KernelError, Operand};
+use crate::geometry::WarpEntry;
+use crate::requant::Requant;
+
+/// Sizes of the cost volume.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CostShape {
+    /// Feature channels C.
+    pub channels: usize,
+    /// Elevation planes N.
+    pub planes: usize,
+    /// Feature range bins H.
+    pub height: usize,
+    /// Feature columns W.
+    pub width: usize,
+}
+
+impl CostShape {
+    /// The compiled configuration's cost volume.
+    pub const EPSSN: CostShape = CostShape {
+        channels: crate::config::FEATURE_CHANNELS,
+        planes: crate::config::PLANES,
+        height: crate::config::FEATURE_RANGE_BINS,
+        width: crate::config::FEATURE_COLUMNS,
+    };
+}
+
+/// One source view: its features and its warp table.
+#[derive(Clone, Copy, Debug)]
+pub struct SourceView<'a> {
+    /// Features `[C][H][W]`, same scale as the reference.
+    pub features: &'a [i8],
+    /// Warp table `[plane × W + column]`.
+    pub warp: &'a [WarpEntry],
+}
+
+/// Full interpolation weight of the warp fraction (8 fraction bits).
+const ONE: u16 = 256;
+
+fn check(
+    shape: &CostShape,
+    reference: &[i8],
+    sources: &[SourceView<'_>],
+    requant: Requant,
+    output: &[i8],
+) -> Result<(), KernelError> {
+    if !(1..=2).contains(&sources.len()) {
+        return Err(KernelError::ViewCount {
+            sources: sources.len(),
+        });
+    }
+    let ch = shape.height.checked_mul(shape.width);
+    let feat = ch
+        .and_then(|x| x.checked_mul(shape.channels))
+        .ok_or(KernelError::SizeOverflow)?;
+    let table = shape
+        .planes
+        .checked_mul(shape.width)
+        .ok_or(KernelError::SizeOverflow)?;
+    let vol = feat
+        .checked_mul(shape.planes)
+        .ok_or(KernelError::SizeOverflow)?;
+    expect(Operand::Reference, feat, reference.len())?;
+    expect(Operand::Output, vol, output.len())?;
+    for (k, s) in sources.iter().enumerate() {
+        expect(Operand::Source(k as u8), feat, s.features.len())?;
+        expect(Operand::Warp(k as u8), table, s.warp.len())?;
+        for (index, e) in s.warp.iter().enumerate() {
+            let c = e.column as usize;
+            let bad =
+                e.fraction > ONE || c >= shape.width || (e.fraction > 0 && c + 1 >= shape.width);
+            if e.visible && bad {
+                return Err(KernelError::WarpEntry {
+                    source: k as u8,
+                    index,
+                });
+            }
+        }
+    }
+    if !requant.shift_in_range() {
+        return Err(KernelError::Shift {
+            channel: 0,
+            shift: requant.shift,
+        });
+    }
+    // X ≤ n²·128² (< 2^18 for n ≤ 3).
+    let n = sources.len() as i64 + 1;
+    let bound = n * n * 128 * 128;
+    if !requant.fits(bound) {
+        return Err(KernelError::AccumulatorOverflow { channel: 0, bound });
+    }
+    Ok(())
+}
+
+/// Warped value of one source pixel from the row of its features (validated entry).
+#[inline(always)]
+fn warp(row: &[i8], e: WarpEntry) -> i32 {
+    if !e.visible {
+        return 0;
+    }
+    let c = e.column as usize;
+    let a = e.fraction as i32;
+    let left = row[c] as i32 * (ONE as i32 - a);
+    // F[c+1] is read only when α > 0 (it may not exist for the last column).
+    let right = if a > 0 { row[c + 1] as i32 * a } else { 0 };
+    (left + right + 128) >> 8
+}
+
+#[inline(always)]
+fn cost(sum: i32, sum_sq: i32, n: i32, requant: Requant) -> i8 {
+    let x = n * sum_sq - sum * sum;
+    requant.apply(x).clamp(0, 127) as i8
+}
+
+/// Plain reference: one voxel at a time, index arithmetic from scratch.
+pub fn cost_volume_s8_plain(
+    shape: &CostShape,
+    reference: &[i8],
+    sources: &[SourceView<'_>],
+    requant: Requant,
+    output: &mut [i8],
+) -> Result<(), KernelError> {
+    check(shape, reference, sources, requant, output)?;
+    let CostShape {
+        channels,
+        planes,
+        height,
+        width,
+    } = *shape;
+    let n = sources.len() as i32 + 1;
+    for c in 0..channels {
+        for j in 0..planes {
+            for r in 0..height {
+                for b in 0..width {
+                    let v0 = reference[(c * height + r) * width + b] as i32;
+                    let (mut sum, mut sum_sq) = (v0, v0 * v0);
+                    for s in sources {
+                        let e = s.warp[j * width + b];
+                        let row_start = (c * height + r) * width;
+                        let v = warp(&s.features[row_start..row_start + width], e);
+                        sum += v;
+                        sum_sq += v * v;
+                    }
+                    output[((c * planes + j) * height + r) * width + b] =
+                        cost(sum, sum_sq, n, requant);
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Optimised: row slices hoisted out of the column loop; two views reduce to
+/// `X = (v0 − v1)²`.
+pub fn cost_volume_s8(
+    shape: &CostShape,
+    reference: &[i8],
+    sources: &[SourceView<'_>],
+    requant: Requant,
+    output: &mut [i8],
+) -> Result<(), KernelError> {
+    check(shape, reference, sources, requant, output)?;
+    let CostShape {
+        channels: _,
+        planes,
+        height,
+        width,
+    } = *shape;
+    let plane_len = height * width;
+    for (c, out_c) in output.chunks_exact_mut(planes * plane_len).enumerate() {
+        let ref_c = &reference[c * plane_len..(c + 1) * plane_len];
+        for (j, out_j) in out_c.chunks_exact_mut(plane_len).enumerate() {
+            let warp0 = &sources[0].warp[j * width..(j + 1) * width];
+            let src0 = &sources[0].features[c * plane_len..(c + 1) * plane_len];
+            match sources.get(1) {
+                None => {
+                    for ((out_r, ref_r), src_r) in out_j
+                        .chunks_exact_mut(width)
+                        .zip(ref_c.chunks_exact(width))
+                        .zip(src0.chunks_exact(width))
+                    {
+                        for ((o, &v0), &e) in out_r.iter_mut().zip(ref_r).zip(warp0) {
+                            let d = v0 as i32 - warp(src_r, e);
+                            *o = requant.apply(d * d).clamp(0, 127) as i8;
+                        }
+                    }
+                }
+                Some(s1) => {
+                    let warp1 = &s1.warp[j * width..(j + 1) * width];
+                    let src1 = &s1.features[c * plane_len..(c + 1) * plane_len];
+                    for (r, out_r) in out_j.chunks_exact_mut(width).enumerate() {
+                        let ref_r = &ref_c[r * width..(r + 1) * width];
+                        let s0r = &src0[r * width..(r + 1) * width];
+                        let s1r = &src1[r * width..(r + 1) * width];
+                        for (b, o) in out_r.iter_mut().enumerate() {
+                            let v0 = ref_r[b] as i32;
+                            let v1 = warp(s0r, warp0[b]);
+                            let v2 = warp(s1r, warp1[b]);
+                            let sum = v0 + v1 + v2;
+                            *o = cost(sum, v0 * v0 + v1 * v1 + v2 * v2, 3, requant);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::testutil::Rng;
+    use super::*;
+    use crate::config;
+    use std::vec;
+    use std::vec::Vec;
+
+    fn random_table(rng: &mut Rng, planes: usize, width: usize) -> Vec<WarpEntry> {
+        (0..planes * width)
+            .map(|_| {
+                let column = rng.below(width) as u8;
+                let fraction = if column as usize + 1 < width {
+                    rng.range(0, 256) as u16
+                } else {
+                    0
+                };
+                WarpEntry {
+                    column,
+                    fraction,
+                    visible: rng.below(5) != 0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn optimised_equals_plain_random() {
+        let mut rng = Rng(42);
+        for case in 0..100 {
+            let shape = CostShape {
+                channels: 1 + rng.below(3),
+                planes: 1 + rng.below(4),
+                height: 1 + rng.below(5),
+                width: 1 + rng.below(7),
+            };
+            let feat = shape.channels * shape.height * shape.width;
+            let reference = rng.i8s(feat);
+            let f1 = rng.i8s(feat);
+            let f2 = rng.i8s(feat);
+            let t1 = random_table(&mut rng, shape.planes, shape.width);
+            let t2 = random_table(&mut rng, shape.planes, shape.width);
+            let views = [
+                SourceView {
+                    features: &f1,
+                    warp: &t1,
+                },
+                SourceView {
+                    features: &f2,
+                    warp: &t2,
+                },
+            ];
+            let n_src = 1 + case % 2;
+            let rq = Requant {
+                multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
+                shift: rng.range(-14, 0) as i32,
+            };
+            let len = feat * shape.planes;
+            let (mut a, mut o) = (vec![0i8; len], vec![1i8; len]);
+            cost_volume_s8_plain(&shape, &reference, &views[..n_src], rq, &mut a).unwrap();
+            cost_volume_s8(&shape, &reference, &views[..n_src], rq, &mut o).unwrap();
+            assert_eq!(a, o, "case {case} {shape:?}");
+            assert!(a.iter().all(|&v| v >= 0));
+        }
+    }
+
+    #[test]
+    fn real_tables_two_and_three_views() {
+        let mut rng = Rng(5);
+        let shape = CostShape::EPSSN;
+        let reference = rng.i8s(config::FEATURE_LEN);
+        let f1 = rng.i8s(config::FEATURE_LEN);
+        let f2 = rng.i8s(config::FEATURE_LEN);
+        let views = [
+            SourceView {
+                features: &f1,
+                warp: &config::WARP_TABLES[0],
+            },
+            SourceView {
+                features: &f2,
+                warp: &config::WARP_TABLES[1],
+            },
+        ];
+        let rq = Requant::from_real(1.0 / 512.0).unwrap();
+        for n in 1..=2 {
+            let (mut a, mut o) = (
+                vec![0i8; config::COST_VOLUME_LEN],
+                vec![0i8; config::COST_VOLUME_LEN],
+            );
+            cost_volume_s8_plain(&shape, &reference, &views[..n], rq, &mut a).unwrap();
+            cost_volume_s8(&shape, &reference, &views[..n], rq, &mut o).unwrap();
+            assert_eq!(a, o);
+            assert!(a.iter().any(|&v| v != a[0]));
+        }
+    }
+
+    #[test]
+    fn identical_views_have_zero_cost_and_errors() {
+        // A source whose table maps every column onto itself, α = 0: variance 0.
+        let shape = CostShape {
+            channels: 2,
+            planes: 3,
+            height: 4,
+            width: 5,
+        };
+        let mut rng = Rng(8);
+        let f = rng.i8s(40);
+        let table: Vec<WarpEntry> = (0..15)
+            .map(|i| WarpEntry {
+                column: (i % 5) as u8,
+                fraction: 0,
+                visible: true,
+            })
+            .collect();
+        let v = [SourceView {
+            features: &f,
+            warp: &table,
+        }];
+        let mut out = vec![1i8; 120];
+        let rq = Requant::from_real(1.0).unwrap();
+        cost_volume_s8(&shape, &f, &v, rq, &mut out).unwrap();
+        assert!(out.iter().all(|&x| x == 0));
+        // α = 256 reads the right neighbour exactly.
+        let mut bad = table.clone();
+        bad[4].fraction = 1;
+        let v = [SourceView {
+            features: &f,
+            warp: &bad,
+        }];
+        assert_eq!(
+            cost_volume_s8(&shape, &f, &v, rq, &mut out),
+            Err(KernelError::WarpEntry {
+                source: 0,
+                index: 4
+            })
+        );
+        assert_eq!(
+            cost_volume_s8(&shape, &f, &[], rq, &mut out),
+            Err(KernelError::ViewCount { sources: 0 })
+        );
+        let v = [SourceView {
+            features: &f[1..],
+            warp: &table,
+        }];
+        assert!(matches!(
+            cost_volume_s8_plain(&shape, &f, &v, rq, &mut out),
+            Err(KernelError::Length {
+                operand: Operand::Source(0),
+                ..
+            })
+        ));
+    }
+}

@@ -1,0 +1,531 @@
+//! int8 kernels of the network, each as a plain reference (`*_plain`, straightforward loops)
+//! beside the optimised version that inference uses. Both compute exactly the arithmetic of
+//! `docs/QUANTISATION.md`; unit tests compare them element by element.
+//!
+//! Every kernel validates its shape and all slice lengths first and returns a
+//! [`KernelError`] instead of panicking. It also checks, from the weights, biases and
+//! multipliers, that no int32 accumulator and no requantisation left shift can overflow for
+//! any int8 input (see [`accumulator_bound`]); after validation the arithmetic is exact.
+//!
+//! Tensor layouts are channel-major: 2D `[C][H][W]`, 3D `[C][D][H][W]`; weights `[O][I][k…]`
+//! for convolutions and `[I][O][k…]` for transposed convolutions.
+
+pub mod conv2d_s8;
+pub mod conv3d_s8;
+pub mod conv_transpose3d_s8;
+pub mod cost_volume_s8;
+pub mod soft_argmax_s8;
+
+use crate::config::LayerShape;
+use crate::requant::Requant;
+
+/// Which operand of a kernel a length error is about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Operand {
+    /// The input activation.
+    Input,
+    /// The output activation.
+    Output,
+    /// The weights.
+    Weights,
+    /// The biases.
+    Bias,
+    /// The per-channel requantisation multipliers.
+    Requant,
+    /// The skip tensor.
+    Skip,
+    /// The reference view's features.
+    Reference,
+    /// Source view `k` (0-based among the sources) features.
+    Source(u8),
+    /// Source view `k`'s warp table.
+    Warp(u8),
+    /// The soft-argmax logits.
+    Logits,
+    /// The depth map.
+    Depth,
+}
+
+/// What a kernel found wrong with its arguments.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum KernelError {
+    /// A slice does not have the length the shape implies.
+    Length {
+        /// Which slice.
+        operand: Operand,
+        /// Length the shape implies.
+        expected: usize,
+        /// Length given.
+        actual: usize,
+    },
+    /// A size product does not fit `usize`.
+    SizeOverflow,
+    /// Zero kernel size or stride on an axis.
+    ZeroKernelOrStride {
+        /// Axis 0..3.
+        axis: u8,
+    },
+    /// The padded input is smaller than the kernel on an axis.
+    KernelLargerThanInput {
+        /// Axis 0..3.
+        axis: u8,
+    },
+    /// The shape's output size is not what the input size, kernel, stride and padding give.
+    OutputSize {
+        /// Axis 0..3.
+        axis: u8,
+        /// Size implied by the rest of the shape.
+        expected: usize,
+        /// Size in the shape.
+        actual: usize,
+    },
+    /// A 2D kernel got a shape whose third axis is not trivial (size, kernel and stride 1,
+    /// no padding).
+    NotTwoDimensional,
+    /// Output padding must be smaller than the stride (as in PyTorch).
+    OutputPadding {
+        /// Axis 0..3.
+        axis: u8,
+    },
+    /// A requantisation shift outside `MIN_SHIFT..=MAX_SHIFT`.
+    Shift {
+        /// Output channel (or 0 for a per-tensor multiplier).
+        channel: usize,
+        /// The shift.
+        shift: i32,
+    },
+    /// An accumulator of this channel could leave int32, or overflow in the requantisation
+    /// left shift, for some int8 input.
+    AccumulatorOverflow {
+        /// Output channel (or 0 for a per-tensor multiplier).
+        channel: usize,
+        /// Worst-case |accumulator| over all int8 inputs.
+        bound: i64,
+    },
+    /// The cost volume takes one or two source views.
+    ViewCount {
+        /// Source views given.
+        sources: usize,
+    },
+    /// A visible warp entry points outside the source feature columns, or has a fraction
+    /// above 256.
+    WarpEntry {
+        /// Source view (0-based among the sources).
+        source: u8,
+        /// Entry index `plane × width + column`.
+        index: usize,
+    },
+    /// `EXP[0]` is zero, so the softmax denominator could be zero.
+    ExpTable,
+    /// Soft-argmax over more than 256 or zero bins (the u32 sums of the contract need ≤ 256).
+    RangeBins {
+        /// Bins given.
+        bins: usize,
+    },
+    /// `r_min16 + (bins − 1) · step16` does not fit U16F16.
+    DepthOverflow,
+    /// The fused head needs kernel == stride, no padding and one output channel.
+    NotStreamableHead,
+}
+
+/// Shape of a convolution or transposed convolution, axes `[D, H, W]`; a 2D layer `[H][W]`
+/// uses axes 0 and 1 and has size, kernel and stride 1 on axis 2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ConvShape {
+    /// Input channels.
+    pub in_channels: usize,
+    /// Output channels.
+    pub out_channels: usize,
+    /// Kernel size per axis.
+    pub kernel: [usize; 3],
+    /// Stride per axis.
+    pub stride: [usize; 3],
+    /// Padding per axis (both sides).
+    pub padding: [usize; 3],
+    /// Output padding per axis (transposed convolutions only; ignored otherwise).
+    pub output_padding: [usize; 3],
+    /// Input size per axis.
+    pub in_size: [usize; 3],
+    /// Output size per axis.
+    pub out_size: [usize; 3],
+}
+
+impl From<&LayerShape> for ConvShape {
+    fn from(l: &LayerShape) -> Self {
+        let u = |a: [u8; 3]| [a[0] as usize, a[1] as usize, a[2] as usize];
+        ConvShape {
+            in_channels: l.in_channels,
+            out_channels: l.out_channels,
+            kernel: u(l.kernel),
+            stride: u(l.stride),
+            padding: u(l.padding),
+            output_padding: u(l.output_padding),
+            in_size: l.in_size,
+            out_size: l.out_size,
+        }
+    }
+}
+
+/// Weights, biases and requantisation of one convolution layer.
+#[derive(Clone, Copy, Debug)]
+pub struct ConvParams<'a> {
+    /// int8 weights, `[O][I][k…]` (convolution) or `[I][O][k…]` (transposed).
+    pub weights: &'a [i8],
+    /// int32 biases `[O]`.
+    pub bias: &'a [i32],
+    /// Per-output-channel multipliers `[O]`.
+    pub requant: &'a [Requant],
+    /// Added to every input value (128 for the network input, else 0); padding adds nothing.
+    pub input_offset: i32,
+    /// Fused ReLU.
+    pub relu: bool,
+}
+
+/// The tensor added after the ReLU of a transposed convolution (QUANTISATION.md "Skip add").
+#[derive(Clone, Copy, Debug)]
+pub enum Skip<'a> {
+    /// No skip: `y = clamp(t)`.
+    None,
+    /// Skip tensor in its own slice, same layout and length as the output.
+    Separate {
+        /// The skip tensor.
+        skip: &'a [i8],
+        /// `m_skip = s_skip / s_y`.
+        requant: Requant,
+    },
+    /// The output slice holds the skip tensor on entry and is overwritten voxel by voxel
+    /// (each output voxel reads only its own skip value, so this is exact).
+    InPlace {
+        /// `m_skip = s_skip / s_y`.
+        requant: Requant,
+    },
+}
+
+/// Worst-case `|accumulator|`, over every int8 input and every partial sum, of one output
+/// channel whose taps have `weights` and whose bias is `bias`, with inputs `q + input_offset`
+/// for `q` in `−128..=127` (padded taps contribute 0, which the bound also covers).
+///
+/// The quantiser asserts this is `< 2^31` and that [`Requant::fits`] it; the kernels check
+/// the same and refuse layers that could overflow.
+pub fn accumulator_bound(
+    weights: impl IntoIterator<Item = i8>,
+    bias: i32,
+    input_offset: i32,
+) -> i64 {
+    let lo = -128 + input_offset as i64;
+    let hi = 127 + input_offset as i64;
+    let (mut max, mut min) = (bias as i64, bias as i64);
+    for w in weights {
+        let (a, b) = (w as i64 * lo, w as i64 * hi);
+        // Each term lies in [min(a, b, 0), max(a, b, 0)], so every partial sum lies in
+        // [min, max] whatever the order and the padding.
+        max = max.saturating_add(a.max(b).max(0));
+        min = min.saturating_add(a.min(b).min(0));
+    }
+    max.saturating_abs().max(min.saturating_abs())
+}
+
+/// The worst-case accumulator of each output channel of a convolution (`[O][I][k…]` weights)
+/// or, with `transposed`, of a transposed convolution (`[I][O][k…]`), checked against int32
+/// and the channel's left shift. Returns the largest bound.
+pub fn check_layer_bounds(
+    shape: &ConvShape,
+    params: &ConvParams<'_>,
+    transposed: bool,
+) -> Result<i64, KernelError> {
+    let taps = mul3(shape.kernel)?;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    expect(Operand::Bias, oc, params.bias.len())?;
+    expect(Operand::Requant, oc, params.requant.len())?;
+    let per_out = ic.checked_mul(taps).ok_or(KernelError::SizeOverflow)?;
+    expect(
+        Operand::Weights,
+        per_out.checked_mul(oc).ok_or(KernelError::SizeOverflow)?,
+        params.weights.len(),
+    )?;
+    let mut worst = 0;
+    for (o, (&bias, &rq)) in params.bias.iter().zip(params.requant).enumerate() {
+        if !rq.shift_in_range() {
+            return Err(KernelError::Shift {
+                channel: o,
+                shift: rq.shift,
+            });
+        }
+        let bound = if transposed {
+            let w = params.weights;
+            accumulator_bound(
+                (0..ic).flat_map(|i| {
+                    let start = (i * oc + o) * taps;
+                    w[start..start + taps].iter().copied()
+                }),
+                bias,
+                params.input_offset,
+            )
+        } else {
+            let start = o * per_out;
+            accumulator_bound(
+                params.weights[start..start + per_out].iter().copied(),
+                bias,
+                params.input_offset,
+            )
+        };
+        if !rq.fits(bound) {
+            return Err(KernelError::AccumulatorOverflow { channel: o, bound });
+        }
+        worst = worst.max(bound);
+    }
+    Ok(worst)
+}
+
+/// Checks a per-tensor skip multiplier against int8 skip values.
+pub(crate) fn check_skip(skip: &Skip<'_>, output_len: usize) -> Result<(), KernelError> {
+    let rq = match *skip {
+        Skip::None => return Ok(()),
+        Skip::Separate { skip, requant } => {
+            expect(Operand::Skip, output_len, skip.len())?;
+            requant
+        }
+        Skip::InPlace { requant } => requant,
+    };
+    if !rq.shift_in_range() {
+        return Err(KernelError::Shift {
+            channel: 0,
+            shift: rq.shift,
+        });
+    }
+    if !rq.fits(128) {
+        return Err(KernelError::AccumulatorOverflow {
+            channel: 0,
+            bound: 128,
+        });
+    }
+    Ok(())
+}
+
+/// `t` → output value: ReLU, then the skip add and the int8 clamp.
+#[inline(always)]
+pub(crate) fn finish(t: i32, relu: bool, skip: Option<(i8, Requant)>) -> i8 {
+    let t = if relu { t.max(0) } else { t };
+    let y = match skip {
+        // Saturation only acts far outside int8, so it cannot change the clamped result.
+        Some((s, rq)) => t.saturating_add(rq.apply(s as i32)),
+        None => t,
+    };
+    y.clamp(-128, 127) as i8
+}
+
+pub(crate) fn expect(operand: Operand, expected: usize, actual: usize) -> Result<(), KernelError> {
+    if expected == actual {
+        Ok(())
+    } else {
+        Err(KernelError::Length {
+            operand,
+            expected,
+            actual,
+        })
+    }
+}
+
+pub(crate) fn mul3(a: [usize; 3]) -> Result<usize, KernelError> {
+    a[0].checked_mul(a[1])
+        .and_then(|x| x.checked_mul(a[2]))
+        .ok_or(KernelError::SizeOverflow)
+}
+
+/// Validates a forward convolution's shape and every slice; returns nothing but guarantees
+/// that all indices the kernels form are in bounds.
+pub(crate) fn check_conv(
+    shape: &ConvShape,
+    input_len: usize,
+    params: &ConvParams<'_>,
+    output_len: usize,
+) -> Result<(), KernelError> {
+    for axis in 0..3 {
+        let (k, s, p) = (shape.kernel[axis], shape.stride[axis], shape.padding[axis]);
+        if k == 0 || s == 0 {
+            return Err(KernelError::ZeroKernelOrStride { axis: axis as u8 });
+        }
+        let padded = shape.in_size[axis]
+            .checked_add(p.checked_mul(2).ok_or(KernelError::SizeOverflow)?)
+            .ok_or(KernelError::SizeOverflow)?;
+        if padded < k {
+            return Err(KernelError::KernelLargerThanInput { axis: axis as u8 });
+        }
+        let expected = (padded - k) / s + 1;
+        if expected != shape.out_size[axis] {
+            return Err(KernelError::OutputSize {
+                axis: axis as u8,
+                expected,
+                actual: shape.out_size[axis],
+            });
+        }
+    }
+    check_lengths(shape, input_len, output_len)?;
+    check_layer_bounds(shape, params, false)?;
+    Ok(())
+}
+
+/// Validates a transposed convolution's shape and every slice.
+pub(crate) fn check_conv_transpose(
+    shape: &ConvShape,
+    input_len: usize,
+    params: &ConvParams<'_>,
+    output_len: usize,
+) -> Result<(), KernelError> {
+    for axis in 0..3 {
+        let (k, s, p, op) = (
+            shape.kernel[axis],
+            shape.stride[axis],
+            shape.padding[axis],
+            shape.output_padding[axis],
+        );
+        if k == 0 || s == 0 {
+            return Err(KernelError::ZeroKernelOrStride { axis: axis as u8 });
+        }
+        if op >= s {
+            return Err(KernelError::OutputPadding { axis: axis as u8 });
+        }
+        // (in − 1)·s + k + op − 2p, which must be positive.
+        let full = shape.in_size[axis]
+            .checked_sub(1)
+            .and_then(|x| x.checked_mul(s))
+            .and_then(|x| x.checked_add(k))
+            .and_then(|x| x.checked_add(op))
+            .ok_or(KernelError::SizeOverflow)?;
+        let expected = full
+            .checked_sub(p.checked_mul(2).ok_or(KernelError::SizeOverflow)?)
+            .filter(|&x| x > 0)
+            .ok_or(KernelError::KernelLargerThanInput { axis: axis as u8 })?;
+        if expected != shape.out_size[axis] {
+            return Err(KernelError::OutputSize {
+                axis: axis as u8,
+                expected,
+                actual: shape.out_size[axis],
+            });
+        }
+    }
+    check_lengths(shape, input_len, output_len)?;
+    check_layer_bounds(shape, params, true)?;
+    Ok(())
+}
+
+fn check_lengths(
+    shape: &ConvShape,
+    input_len: usize,
+    output_len: usize,
+) -> Result<(), KernelError> {
+    let inl = mul3(shape.in_size)?
+        .checked_mul(shape.in_channels)
+        .ok_or(KernelError::SizeOverflow)?;
+    let outl = mul3(shape.out_size)?
+        .checked_mul(shape.out_channels)
+        .ok_or(KernelError::SizeOverflow)?;
+    expect(Operand::Input, inl, input_len)?;
+    expect(Operand::Output, outl, output_len)
+}
+
+/// Small deterministic generator for the kernels' unit tests.
+#[cfg(test)]
+pub(crate) mod testutil {
+    use super::*;
+
+    pub struct Rng(pub u64);
+
+    impl Rng {
+        pub fn next(&mut self) -> u64 {
+            // xorshift64*
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+        pub fn below(&mut self, n: usize) -> usize {
+            (self.next() % n as u64) as usize
+        }
+        pub fn range(&mut self, lo: i64, hi: i64) -> i64 {
+            lo + (self.next() % (hi - lo + 1) as u64) as i64
+        }
+        pub fn i8s(&mut self, n: usize) -> std::vec::Vec<i8> {
+            (0..n).map(|_| self.range(-128, 127) as i8).collect()
+        }
+        /// A multiplier in [2^30, 2^31) with a shift in a realistic range.
+        pub fn requant(&mut self) -> Requant {
+            Requant {
+                multiplier: self.range(1 << 30, (1i64 << 31) - 1) as i32,
+                shift: self.range(-12, 0) as i32,
+            }
+        }
+    }
+
+    /// Random biases, weights and multipliers for `shape`, with weights ±127.
+    pub fn params(
+        rng: &mut Rng,
+        shape: &ConvShape,
+    ) -> (
+        std::vec::Vec<i8>,
+        std::vec::Vec<i32>,
+        std::vec::Vec<Requant>,
+    ) {
+        let n = shape.in_channels * shape.out_channels * shape.kernel.iter().product::<usize>();
+        let w = (0..n).map(|_| rng.range(-127, 127) as i8).collect();
+        let b = (0..shape.out_channels)
+            .map(|_| rng.range(-100_000, 100_000) as i32)
+            .collect();
+        let r = (0..shape.out_channels).map(|_| rng.requant()).collect();
+        (w, b, r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bound_is_attained_by_extreme_inputs() {
+        let w = [3i8, -5, 127, -128];
+        // With offset 0: max = 7 + 3·127 + (−5)(−128) + 127·127 + (−128)(−128).
+        let max = 7 + 3 * 127 + 5 * 128 + 127 * 127 + 128 * 128;
+        let min = 7 - 3 * 128 - 5 * 127 - 127 * 128 - 128 * 127;
+        assert_eq!(accumulator_bound(w, 7, 0), (max as i64).max(-min as i64));
+        // With offset 128 inputs are 0..=255: the negative weights give the minimum.
+        assert_eq!(accumulator_bound(w, 0, 128), (5 + 128) * 255);
+    }
+
+    #[test]
+    fn layer_bounds_refuse_overflowing_shift() {
+        let shape = ConvShape {
+            in_channels: 1,
+            out_channels: 1,
+            kernel: [1, 1, 1],
+            stride: [1, 1, 1],
+            padding: [0; 3],
+            output_padding: [0; 3],
+            in_size: [1, 1, 1],
+            out_size: [1, 1, 1],
+        };
+        let rq = [Requant {
+            multiplier: 1 << 30,
+            shift: 20,
+        }];
+        let p = ConvParams {
+            weights: &[127],
+            bias: &[0],
+            requant: &rq,
+            input_offset: 0,
+            relu: false,
+        };
+        assert!(matches!(
+            check_layer_bounds(&shape, &p, false),
+            Err(KernelError::AccumulatorOverflow { channel: 0, .. })
+        ));
+        let rq = [Requant {
+            multiplier: 1 << 30,
+            shift: 10,
+        }];
+        let p = ConvParams { requant: &rq, ..p };
+        assert_eq!(check_layer_bounds(&shape, &p, false), Ok(128 * 127));
+    }
+}

@@ -1,0 +1,407 @@
+//! Fixed-point soft-argmax along range (QUANTISATION.md "Soft-argmax"), and the fused
+//! streaming head + soft-argmax.
+//!
+//! Logits `[E][R][A]` int8 (elevation rows, range bins, azimuth columns; the head's output
+//! with its single channel dropped). Per ray: `m = max q_i`, `e_i = EXP[m − q_i]`,
+//! `S = Σ e_i`, `T = Σ e_i·i`, `b16 = (T·2^16 + S/2) / S`,
+//! `d16 = r_min16 + (b16·step16 + 2^15) >> 16` → depth `[E][A]` as [`U16F16`] metres.
+//!
+//! Work: `E · A · R` table look-ups and `E · A · R` multiplies, one u64 division per ray.
+
+use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
+use fixed::types::U16F16;
+
+/// Sizes of the logits volume.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SoftArgmaxShape {
+    /// Elevation rows E.
+    pub rows: usize,
+    /// Range bins R (soft-argmax axis), at most [`MAX_BINS`].
+    pub bins: usize,
+    /// Azimuth columns A.
+    pub columns: usize,
+}
+
+/// Most range bins: keeps `T = Σ e_i·i` within u32 as the contract requires.
+pub const MAX_BINS: usize = 256;
+
+/// The exp table and the depth of the bins.
+#[derive(Clone, Copy, Debug)]
+pub struct SoftArgmaxParams<'a> {
+    /// `EXP[d] = round_half_away(65535 · exp(−d · s_l))`.
+    pub exp: &'a [u16; 256],
+    /// `round(r_min · 2^16)`: depth of bin 0.
+    pub r_min16: U16F16,
+    /// `round((r_max − r_min) / (bins − 1) · 2^16)`: depth step between bins.
+    pub step16: U16F16,
+}
+
+fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
+    if bins == 0 || bins > MAX_BINS {
+        return Err(KernelError::RangeBins { bins });
+    }
+    if p.exp[0] == 0 {
+        return Err(KernelError::ExpTable);
+    }
+    // b16 ≤ (bins − 1)·2^16, so this is the largest depth any ray can produce.
+    let max_b16 = ((bins - 1) as u64) << 16;
+    let top =
+        p.r_min16.to_bits() as u64 + ((max_b16 * p.step16.to_bits() as u64 + (1 << 15)) >> 16);
+    if top > u32::MAX as u64 {
+        return Err(KernelError::DepthOverflow);
+    }
+    Ok(())
+}
+
+/// `S`, `T` → depth (the contract's integer formula).
+#[inline(always)]
+fn depth_of(s: u32, t: u32, p: &SoftArgmaxParams<'_>) -> U16F16 {
+    // S ≥ EXP[0] > 0 (checked), so the division is defined.
+    let s64 = s as u64;
+    let b16 = ((t as u64) << 16).wrapping_add(s64 / 2) / s64.max(1);
+    let d = p.r_min16.to_bits() as u64 + ((b16 * p.step16.to_bits() as u64 + (1 << 15)) >> 16);
+    U16F16::from_bits(d as u32)
+}
+
+/// Soft-argmax of one ray's logits (at most [`MAX_BINS`], parameters checked).
+#[inline(always)]
+fn ray_depth(logits: &[i8], p: &SoftArgmaxParams<'_>) -> U16F16 {
+    let m = logits.iter().copied().max().unwrap_or(0) as i32;
+    let (mut s, mut t) = (0u32, 0u32);
+    for (i, &q) in logits.iter().enumerate() {
+        let e = p.exp[(m - q as i32) as usize] as u32;
+        s += e;
+        t += e * i as u32;
+    }
+    depth_of(s, t, p)
+}
+
+fn check_shape(
+    shape: &SoftArgmaxShape,
+    logits: &[i8],
+    p: &SoftArgmaxParams<'_>,
+    depth: &[U16F16],
+) -> Result<(), KernelError> {
+    check_params(p, shape.bins)?;
+    let rays = shape
+        .rows
+        .checked_mul(shape.columns)
+        .ok_or(KernelError::SizeOverflow)?;
+    let n = rays
+        .checked_mul(shape.bins)
+        .ok_or(KernelError::SizeOverflow)?;
+    super::expect(Operand::Logits, n, logits.len())?;
+    super::expect(Operand::Depth, rays, depth.len())
+}
+
+/// Plain reference: one ray at a time, strided reads.
+pub fn soft_argmax_s8_plain(
+    shape: &SoftArgmaxShape,
+    logits: &[i8],
+    params: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    check_shape(shape, logits, params, depth)?;
+    let SoftArgmaxShape {
+        rows,
+        bins,
+        columns,
+    } = *shape;
+    for e in 0..rows {
+        for a in 0..columns {
+            let at = |i: usize| logits[(e * bins + i) * columns + a] as i32;
+            let mut m = at(0);
+            for i in 1..bins {
+                m = m.max(at(i));
+            }
+            let (mut s, mut t) = (0u32, 0u32);
+            for i in 0..bins {
+                let ei = params.exp[(m - at(i)) as usize] as u32;
+                s += ei;
+                t += ei * i as u32;
+            }
+            depth[e * columns + a] = depth_of(s, t, params);
+        }
+    }
+    Ok(())
+}
+
+/// Columns processed together by [`soft_argmax_s8`].
+const TILE: usize = 64;
+
+/// Optimised: rows of the logits are read contiguously, a tile of up to 64 rays at a time
+/// (max pass, then sum pass), with the per-ray state in stack arrays.
+pub fn soft_argmax_s8(
+    shape: &SoftArgmaxShape,
+    logits: &[i8],
+    params: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    check_shape(shape, logits, params, depth)?;
+    let SoftArgmaxShape {
+        rows,
+        bins,
+        columns,
+    } = *shape;
+    for e in 0..rows {
+        let plane = &logits[e * bins * columns..(e + 1) * bins * columns];
+        let mut a0 = 0;
+        while a0 < columns {
+            let w = TILE.min(columns - a0);
+            let mut m = [i8::MIN; TILE];
+            for row in plane.chunks_exact(columns) {
+                for (mx, &q) in m[..w].iter_mut().zip(&row[a0..a0 + w]) {
+                    *mx = (*mx).max(q);
+                }
+            }
+            let mut s = [0u32; TILE];
+            let mut t = [0u32; TILE];
+            for (i, row) in plane.chunks_exact(columns).enumerate() {
+                for (k, &q) in row[a0..a0 + w].iter().enumerate() {
+                    let ei = params.exp[(m[k] as i32 - q as i32) as usize] as u32;
+                    s[k] += ei;
+                    t[k] += ei * i as u32;
+                }
+            }
+            for k in 0..w {
+                depth[e * columns + a0 + k] = depth_of(s[k], t[k], params);
+            }
+            a0 += w;
+        }
+    }
+    Ok(())
+}
+
+/// The head (a transposed convolution with kernel == stride and no padding, one output
+/// channel, so each output voxel depends on exactly one input voxel) fused with the
+/// soft-argmax: each ray's logits are computed into a stack buffer and reduced at once,
+/// never storing the `[E][R][A]` logits volume (MCUNetV2-style streaming).
+///
+/// `shape` is the head's transposed-convolution shape, output axes `[E][R][A]`; `params` as
+/// for [`super::conv_transpose3d_s8::conv_transpose3d_s8`]; `depth` is `[E][A]`.
+///
+/// MACs: `E · R · A · I` (one tap per input channel per logit), plus the soft-argmax.
+pub fn head_soft_argmax_s8(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    if shape.kernel != shape.stride
+        || shape.padding != [0; 3]
+        || shape.output_padding != [0; 3]
+        || shape.out_channels != 1
+    {
+        return Err(KernelError::NotStreamableHead);
+    }
+    let out_len = mul3(shape.out_size)?;
+    check_conv_transpose(shape, input.len(), params, out_len)?;
+    let [rows, bins, columns] = shape.out_size;
+    check_params(soft, bins)?;
+    super::expect(Operand::Depth, rows * columns, depth.len())?;
+    let [id, ih, iw] = shape.in_size;
+    let [kd, kh, kw] = shape.kernel;
+    let taps = kd * kh * kw;
+    let ic = shape.in_channels;
+    let in_plane = id * ih * iw;
+    let (bias, rq, off) = (params.bias[0], params.requant[0], params.input_offset);
+    let mut logits = [0i8; MAX_BINS];
+    for e in 0..rows {
+        let (z, kz) = (e / kd, e % kd);
+        for a in 0..columns {
+            let (x, kx) = (a / kw, a % kw);
+            for (i, l) in logits[..bins].iter_mut().enumerate() {
+                let (y, ky) = (i / kh, i % kh);
+                let in_at = (z * ih + y) * iw + x;
+                let w_at = (kz * kh + ky) * kw + kx;
+                let mut acc = bias;
+                for c in 0..ic {
+                    let v = input[c * in_plane + in_at] as i32 + off;
+                    acc += v * params.weights[c * taps + w_at] as i32;
+                }
+                *l = finish(rq.apply(acc), params.relu, None);
+            }
+            depth[e * columns + a] = ray_depth(&logits[..bins], soft);
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::conv_transpose3d_s8::conv_transpose3d_s8_plain;
+    use super::super::testutil::{params, Rng};
+    use super::super::Skip;
+    use super::*;
+    use crate::config;
+    use std::vec;
+
+    fn exp_table(scale: f64) -> [u16; 256] {
+        core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
+    }
+
+    fn epssn_params(exp: &[u16; 256]) -> SoftArgmaxParams<'_> {
+        let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
+        SoftArgmaxParams {
+            exp,
+            r_min16: U16F16::from_bits(libm::round(config::R_MIN_M * 65536.0) as u32),
+            step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
+        }
+    }
+
+    #[test]
+    fn optimised_equals_plain_random() {
+        let mut rng = Rng(77);
+        for case in 0..100 {
+            let shape = SoftArgmaxShape {
+                rows: 1 + rng.below(4),
+                bins: 1 + rng.below(70),
+                columns: 1 + rng.below(150),
+            };
+            let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
+            let p = epssn_params(&exp);
+            let n = shape.rows * shape.bins * shape.columns;
+            let logits = rng.i8s(n);
+            let rays = shape.rows * shape.columns;
+            let (mut a, mut o) = (vec![U16F16::ZERO; rays], vec![U16F16::ZERO; rays]);
+            soft_argmax_s8_plain(&shape, &logits, &p, &mut a).unwrap();
+            soft_argmax_s8(&shape, &logits, &p, &mut o).unwrap();
+            assert_eq!(a, o, "case {case} {shape:?}");
+        }
+    }
+
+    #[test]
+    fn equal_logits_give_the_middle_and_one_hot_gives_the_bin() {
+        let exp = exp_table(0.2);
+        let p = epssn_params(&exp);
+        let shape = SoftArgmaxShape {
+            rows: 1,
+            bins: 64,
+            columns: 2,
+        };
+        let mut logits = vec![-7i8; 128];
+        // Column 1: one-hot at bin 10 with a gap of 255, where EXP underflows to 0.
+        for i in 0..64 {
+            logits[i * 2 + 1] = -128;
+        }
+        logits[10 * 2 + 1] = 127;
+        let mut d = vec![U16F16::ZERO; 2];
+        soft_argmax_s8(&shape, &logits, &p, &mut d).unwrap();
+        assert_eq!(exp[255], 0);
+        // Middle bin 31.5: r_min16 + (31.5·2^16·step16 + 2^15) >> 16.
+        let mid = p.r_min16.to_bits()
+            + ((63 * p.step16.to_bits() as u64 * (1 << 15) + (1 << 15)) >> 16) as u32;
+        assert_eq!(d[0].to_bits(), mid);
+        assert_eq!(
+            d[1].to_bits(),
+            p.r_min16.to_bits() + 10 * p.step16.to_bits()
+        );
+        let metres = d[0].to_num::<f64>();
+        assert!((metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn fused_head_equals_conv_transpose_then_soft_argmax() {
+        let mut rng = Rng(2024);
+        let exp = exp_table(0.05);
+        let p = epssn_params(&exp);
+        let mut shapes = vec![ConvShape::from(&config::LAYER_HEAD)];
+        for _ in 0..30 {
+            let kernel = [1 + rng.below(3), 1 + rng.below(3), 1 + rng.below(4)];
+            let in_size = [1 + rng.below(3), 1 + rng.below(6), 1 + rng.below(4)];
+            shapes.push(ConvShape {
+                in_channels: 1 + rng.below(4),
+                out_channels: 1,
+                kernel,
+                stride: kernel,
+                padding: [0; 3],
+                output_padding: [0; 3],
+                in_size,
+                out_size: core::array::from_fn(|a| in_size[a] * kernel[a]),
+            });
+        }
+        for (case, shape) in shapes.iter().enumerate() {
+            let (w, b, r) = params(&mut rng, shape);
+            let input = rng.i8s(shape.in_channels * shape.in_size.iter().product::<usize>());
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &r,
+                input_offset: 0,
+                relu: case % 3 == 1,
+            };
+            let [rows, bins, columns] = shape.out_size;
+            let mut logits = vec![0i8; rows * bins * columns];
+            conv_transpose3d_s8_plain(shape, &input, &cp, Skip::None, &mut logits).unwrap();
+            let ss = SoftArgmaxShape {
+                rows,
+                bins,
+                columns,
+            };
+            let (mut a, mut o) = (
+                vec![U16F16::ZERO; rows * columns],
+                vec![U16F16::ONE; rows * columns],
+            );
+            soft_argmax_s8_plain(&ss, &logits, &p, &mut a).unwrap();
+            head_soft_argmax_s8(shape, &input, &cp, &p, &mut o).unwrap();
+            assert_eq!(a, o, "case {case} {shape:?}");
+        }
+    }
+
+    #[test]
+    fn errors() {
+        let exp = [0u16; 256];
+        let p = SoftArgmaxParams {
+            exp: &exp,
+            r_min16: U16F16::ZERO,
+            step16: U16F16::ZERO,
+        };
+        let s = SoftArgmaxShape {
+            rows: 1,
+            bins: 2,
+            columns: 1,
+        };
+        let mut d = [U16F16::ZERO; 1];
+        assert_eq!(
+            soft_argmax_s8(&s, &[0, 0], &p, &mut d),
+            Err(KernelError::ExpTable)
+        );
+        let exp = [1u16; 256];
+        let p = SoftArgmaxParams { exp: &exp, ..p };
+        let big = SoftArgmaxShape { bins: 257, ..s };
+        assert_eq!(
+            soft_argmax_s8_plain(&big, &[0; 257], &p, &mut d),
+            Err(KernelError::RangeBins { bins: 257 })
+        );
+        let p2 = SoftArgmaxParams {
+            r_min16: U16F16::MAX,
+            step16: U16F16::ONE,
+            ..p
+        };
+        assert_eq!(
+            soft_argmax_s8(&s, &[0, 0], &p2, &mut d),
+            Err(KernelError::DepthOverflow)
+        );
+        assert!(matches!(
+            soft_argmax_s8(&s, &[0, 0, 0], &p, &mut d),
+            Err(KernelError::Length {
+                operand: Operand::Logits,
+                ..
+            })
+        ));
+        let shape = ConvShape::from(&config::LAYER_U0);
+        let cp = ConvParams {
+            weights: &[],
+            bias: &[],
+            requant: &[],
+            input_offset: 0,
+            relu: false,
+        };
+        assert_eq!(
+            head_soft_argmax_s8(&shape, &[], &cp, &p, &mut d),
+            Err(KernelError::NotStreamableHead)
+        );
+    }
+}
