@@ -12,7 +12,7 @@
 //! the same whatever the thread count.
 
 use epssn::config;
-use epssn::geometry::{deg_to_rad, direction, SampleRanges};
+use epssn::geometry::{deg_to_rad, direction, rad_to_deg, SampleRanges};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Exp1, StandardNormal};
@@ -38,7 +38,7 @@ pub struct SonarSimParams {
     pub elevation_rays: usize,
     /// Azimuth sub-rays across each beam's width. Default 3.
     pub azimuth_subrays: usize,
-    /// Half elevation aperture, degrees. Default 7 (ARIS 3000 with the standard lens).
+    /// Half elevation aperture, degrees. Default: the model spec's (7°, ARIS 3000 standard lens).
     pub half_elevation_deg: f64,
     /// Absorption, dB per metre of range (ACSim's figure). Default 1.95.
     pub absorption_db_per_m: f64,
@@ -72,7 +72,7 @@ impl Default for SonarSimParams {
             samples_per_beam: 520,
             elevation_rays: 256,
             azimuth_subrays: 3,
-            half_elevation_deg: 7.0,
+            half_elevation_deg: rad_to_deg(config::HALF_ELEVATION_RAD),
             absorption_db_per_m: 1.95,
             reference_range_m: 2.0,
             pulse_sigma_samples: 1.0,
