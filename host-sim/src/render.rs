@@ -23,7 +23,11 @@ use crate::aris::FrameHeader;
 use crate::scene::{mix64, Scene, World};
 
 /// Every parameter of the simulated sonar and its image formation.
+///
+/// Serialised as `<split>/sim_params.json`; `simulate --params FILE` reads one back (fields
+/// left out keep their defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SonarSimParams {
     /// Speed of sound, m/s (ARIS header SoundSpeed). Default 1500.
     pub sound_speed_m_s: f64,

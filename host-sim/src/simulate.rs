@@ -153,6 +153,9 @@ pub struct SimulateArgs {
     /// Skip the PNG previews.
     #[arg(long)]
     pub no_preview: bool,
+    /// SonarSimParams as JSON (missing fields keep their defaults); default: the defaults.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
 }
 
 /// Runs `host-sim simulate`.
@@ -162,7 +165,17 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         Split::Train => train,
         Split::Test => test,
     });
-    let params = SonarSimParams::default();
+    let params: SonarSimParams = match &args.params {
+        Some(p) => serde_json::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("parsing {}", p.display()))?,
+        None => SonarSimParams::default(),
+    };
+    ensure!(
+        params.samples_per_beam > 0 && params.sample_period_us > 0,
+        "sim params: samples_per_beam and sample_period_us must be positive"
+    );
     let split_dir = args.out.join(args.split.name());
     std::fs::create_dir_all(&split_dir)
         .with_context(|| format!("creating {}", split_dir.display()))?;

@@ -73,6 +73,7 @@ fn simulate(out: &Path, scene: SceneKind, pairs: usize, seed: u64, split: Split,
         split,
         views: 2,
         no_preview: !preview,
+        params: None,
     })
     .unwrap();
 }
@@ -458,6 +459,37 @@ fn cli_simulate_three_views_and_metrics_json() {
     let diff = run(&other);
     assert!(diff["mae"].as_f64().unwrap() > 0.0);
     assert!(diff["cd"].as_f64().unwrap() > 0.0);
+    // A partial params file overrides only what it names.
+    let pfile = dir.path().join("p.json");
+    std::fs::write(&pfile, r#"{"speckle": false, "crosstalk": 0.0}"#).unwrap();
+    let out2 = dir.path().join("p");
+    let st = std::process::Command::new(exe)
+        .args([
+            "simulate",
+            "--scene",
+            "sphere",
+            "--pairs",
+            "1",
+            "--no-preview",
+            "--params",
+        ])
+        .arg(&pfile)
+        .arg("--out")
+        .arg(&out2)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let used: SonarSimParams =
+        serde_json::from_str(&std::fs::read_to_string(out2.join("train/sim_params.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        used,
+        SonarSimParams {
+            speckle: false,
+            crosstalk: 0.0,
+            ..SonarSimParams::default()
+        }
+    );
     // Views 4 is rejected.
     let st = std::process::Command::new(exe)
         .args([
