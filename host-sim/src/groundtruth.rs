@@ -1,14 +1,15 @@
 //! Ground truth on the model's grids: the front depth map and its mask, the elevation map, and
 //! the polar input images (through `epssn::geometry::resample_to_grid`, the model's own path).
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use epssn::config::{
-    DEPTH_COLUMNS, DEPTH_ROWS, DEPTH_ROW_ELEVATION_RAD, HALF_ELEVATION_RAD, INPUT_COLUMNS,
-    INPUT_COLUMN_AZIMUTH_RAD, INPUT_RANGE_BINS, R_MAX_M, R_MIN_M,
+    DEPTH_COLUMNS, DEPTH_ROWS, DEPTH_ROW_ELEVATION_RAD, INPUT_COLUMNS, INPUT_COLUMN_AZIMUTH_RAD,
+    INPUT_RANGE_BINS, R_MAX_M, R_MIN_M,
 };
-use epssn::geometry::{resample_to_grid, Grid};
 
-use crate::render::{beam_centres_rad, RenderedView, SonarSimParams};
+use crate::aris::Frame;
+use crate::polar::frame_to_polar;
+use crate::render::{beam_centres_rad, frame_header, RenderedView, SonarSimParams};
 use crate::scene::{Scene, World};
 
 /// Depth map value and mask for a ray whose first hit is at `t` (None: no hit at all).
@@ -39,29 +40,18 @@ pub fn front_depth(scene: &Scene, world: &World, view: usize) -> (Vec<f64>, Vec<
     (depth, mask)
 }
 
-/// The model's polar grid.
-pub fn model_grid() -> Grid<'static> {
-    Grid {
-        r_min: R_MIN_M,
-        r_max: R_MAX_M,
-        half_elevation: HALF_ELEVATION_RAD,
-        column_azimuths: &INPUT_COLUMN_AZIMUTH_RAD,
-    }
-}
-
-/// Polar input image (R × B u8) of a frame, through the geometry module's resampler.
+/// Polar input image (R × B u8) of a simulated frame, exactly as a reader of the written
+/// `.aris` file gets it: through `polar::frame_to_polar` (the file's beam table and range
+/// geometry) and so through `epssn::geometry::resample_to_grid`.
 pub fn polar_image(samples: &[u8], params: &SonarSimParams) -> Result<Vec<u8>> {
-    let mut out = vec![0u8; INPUT_RANGE_BINS * INPUT_COLUMNS];
-    resample_to_grid(
-        samples,
-        params.sample_ranges(),
-        &beam_centres_rad(),
-        &model_grid(),
-        INPUT_RANGE_BINS,
-        &mut out,
-    )
-    .map_err(|e| anyhow!("resample_to_grid: {e:?}"))?;
-    Ok(out)
+    let frame = Frame {
+        index: 0,
+        header: frame_header(params, 0.0)?,
+        beams: beam_centres_rad().len(),
+        samples_per_beam: params.samples_per_beam,
+        data: samples.to_vec(),
+    };
+    frame_to_polar(&frame)
 }
 
 /// Elevation map (R × B f32 radians) of a rendered reference view: for each polar pixel, the

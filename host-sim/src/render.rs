@@ -12,17 +12,22 @@
 //! the same whatever the thread count.
 
 use epssn::config;
-use epssn::geometry::{deg_to_rad, direction, SampleRanges};
+use epssn::geometry::{deg_to_rad, direction, rad_to_deg, SampleRanges};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Exp1, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::aris::FrameHeader;
 use crate::scene::{mix64, Scene, World};
 
 /// Every parameter of the simulated sonar and its image formation.
+///
+/// Serialised as `<split>/sim_params.json`; `simulate --params FILE` reads one back (fields
+/// left out keep their defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SonarSimParams {
     /// Speed of sound, m/s (ARIS header SoundSpeed). Default 1500.
     pub sound_speed_m_s: f64,
@@ -37,7 +42,7 @@ pub struct SonarSimParams {
     pub elevation_rays: usize,
     /// Azimuth sub-rays across each beam's width. Default 3.
     pub azimuth_subrays: usize,
-    /// Half elevation aperture, degrees. Default 7 (ARIS 3000 with the standard lens).
+    /// Half elevation aperture, degrees. Default: the model spec's (7°, ARIS 3000 standard lens).
     pub half_elevation_deg: f64,
     /// Absorption, dB per metre of range (ACSim's figure). Default 1.95.
     pub absorption_db_per_m: f64,
@@ -71,7 +76,7 @@ impl Default for SonarSimParams {
             samples_per_beam: 520,
             elevation_rays: 256,
             azimuth_subrays: 3,
-            half_elevation_deg: 7.0,
+            half_elevation_deg: rad_to_deg(config::HALF_ELEVATION_RAD),
             absorption_db_per_m: 1.95,
             reference_range_m: 2.0,
             pulse_sigma_samples: 1.0,
@@ -96,6 +101,19 @@ impl SonarSimParams {
             samples: self.samples_per_beam,
         }
     }
+}
+
+/// The ARIS 3000 frame header of a simulated view: the recording geometry of `params` and the
+/// view's roll in SonarRoll, TargetRoll and RollAbsPosition.
+pub fn frame_header(params: &SonarSimParams, roll_deg: f64) -> anyhow::Result<FrameHeader> {
+    Ok(FrameHeader::new_aris3000(
+        config::BEAMS,
+        params.samples_per_beam,
+        params.sample_period_us,
+        params.sample_start_delay_us,
+        params.sound_speed_m_s as f32,
+    )?
+    .with_roll_deg(roll_deg as f32))
 }
 
 /// Beam centres of the ARIS3000_128 table, radians, beam 0 (right-most) first.

@@ -1033,6 +1033,33 @@ mod tests {
     }
 
     #[test]
+    fn train_and_test_terrains_differ() {
+        let terrain = |split, index| match generate(SceneKind::Terrain, split, 1, index, 2)
+            .objects
+            .remove(0)
+        {
+            Object::Terrain(t) => t,
+            other => panic!("not a terrain: {other:?}"),
+        };
+        for index in 0..5 {
+            let (a, b) = (terrain(Split::Train, index), terrain(Split::Test, index));
+            assert!(a.noise_offset[0] < 10_000.0 && b.noise_offset[0] >= 50_000.0);
+            let (za, zb) = (terrain_heights(&a), terrain_heights(&b));
+            assert_eq!(za.len(), zb.len());
+            let diff = za
+                .iter()
+                .zip(&zb)
+                .filter(|(x, y)| (*x - *y).abs() > 1e-3)
+                .count();
+            assert!(diff > za.len() / 2, "terrains {index} nearly equal");
+            // Normalised to the drawn amplitude.
+            let lo = za.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = za.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            assert!((hi - lo - a.amplitude_m).abs() < 1e-9);
+        }
+    }
+
+    #[test]
     fn pose_tilts_down_and_yaws_left() {
         let pose = SonarPose {
             position_m: [0.0, 0.0, 1.0],

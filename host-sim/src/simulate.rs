@@ -19,9 +19,9 @@ use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS, INPUT_COLUMNS, INPUT_RANGE_BINS, 
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
-use crate::aris::{write_recording, FrameHeader};
+use crate::aris::write_recording;
 use crate::groundtruth::{elevation_map, front_depth, polar_image};
-use crate::render::{beam_centres_rad, render_view, SonarSimParams};
+use crate::render::{frame_header, render_view, SonarSimParams};
 use crate::scene::{generate, Scene, SceneKind, Split, World};
 
 /// Everything written for one sample.
@@ -74,14 +74,7 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
 /// Writes one frame as a one-frame ARIS 3000 recording with the view's roll in SonarRoll and
 /// RollAbsPosition.
 pub fn write_aris(path: &Path, frame: &[u8], roll_deg: f64, params: &SonarSimParams) -> Result<()> {
-    let header = FrameHeader::new_aris3000(
-        beam_centres_rad().len(),
-        params.samples_per_beam,
-        params.sample_period_us,
-        params.sample_start_delay_us,
-        params.sound_speed_m_s as f32,
-    )?
-    .with_roll_deg(roll_deg as f32);
+    let header = frame_header(params, roll_deg)?;
     write_recording(path, &[(&header, frame)])?;
     Ok(())
 }
@@ -160,6 +153,9 @@ pub struct SimulateArgs {
     /// Skip the PNG previews.
     #[arg(long)]
     pub no_preview: bool,
+    /// SonarSimParams as JSON (missing fields keep their defaults); default: the defaults.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
 }
 
 /// Runs `host-sim simulate`.
@@ -169,7 +165,17 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         Split::Train => train,
         Split::Test => test,
     });
-    let params = SonarSimParams::default();
+    let params: SonarSimParams = match &args.params {
+        Some(p) => serde_json::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("parsing {}", p.display()))?,
+        None => SonarSimParams::default(),
+    };
+    ensure!(
+        params.samples_per_beam > 0 && params.sample_period_us > 0,
+        "sim params: samples_per_beam and sample_period_us must be positive"
+    );
     let split_dir = args.out.join(args.split.name());
     std::fs::create_dir_all(&split_dir)
         .with_context(|| format!("creating {}", split_dir.display()))?;
