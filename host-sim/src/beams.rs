@@ -31,7 +31,10 @@ impl BeamTable {
 
     /// Beam centres in radians, ascending (beam 0 first, right-most, negative).
     pub fn centres_rad(&self) -> Vec<f64> {
-        self.centre_deg.iter().map(|&d| epssn::geometry::deg_to_rad(d)).collect()
+        self.centre_deg
+            .iter()
+            .map(|&d| epssn::geometry::deg_to_rad(d))
+            .collect()
     }
 
     /// (first, last) beam centre, degrees.

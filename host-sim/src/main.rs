@@ -17,6 +17,11 @@ enum Command {
     Inspect(host_sim::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
     Quantise(host_sim::quantise::QuantiseArgs),
+    /// The main job: pair a recording's frames by roll, run the int8 library and the float
+    /// model, check bit-exactness, score against ground truth, write PNG and PLY.
+    Run(host_sim::run::RunArgs),
+    /// Concatenate simulated samples into one recording with ground truth (the demo data).
+    Bundle(host_sim::run::BundleArgs),
     /// Simulate sonar scenes with exact ground truth into sample folders.
     Simulate(host_sim::simulate::SimulateArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
@@ -29,6 +34,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
         Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
+        Command::Run(args) => host_sim::run::run(&args, &mut stdout.lock()),
+        Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
         Command::Simulate(args) => host_sim::simulate::run(&args),
         Command::Metrics(args) => host_sim::metrics::run(&args),
     };

@@ -120,6 +120,21 @@ pub fn sample_preview(polar_views: &[Vec<u8>], depth: &[f32], mask: &[f32]) -> R
     out
 }
 
+/// Images side by side with a 4-pixel white gap, top-aligned.
+pub fn hstack(images: &[RgbImage]) -> RgbImage {
+    let gap = 4;
+    let w = images.iter().map(|i| i.width()).sum::<u32>()
+        + gap * (images.len() as u32).saturating_sub(1);
+    let h = images.iter().map(|i| i.height()).max().unwrap_or(0);
+    let mut out = RgbImage::from_pixel(w.max(1), h.max(1), Rgb([255, 255, 255]));
+    let mut x = 0;
+    for img in images {
+        image::imageops::replace(&mut out, img, x as i64, 0);
+        x += img.width() + gap;
+    }
+    out
+}
+
 /// Writes a PNG.
 pub fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
     img.save_with_format(path, image::ImageFormat::Png)

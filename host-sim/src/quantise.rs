@@ -351,8 +351,9 @@ fn i32_bytes(v: &[i32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
-/// Writes `<dir>/epssn-s.q8.bin` and `<dir>/quantisation.json`.
-pub fn write(dir: &std::path::Path, q: &Quantised) -> Result<()> {
+/// Writes `<dir>/epssn-s.q8.bin` and `<dir>/quantisation.json`; `float_source` says where the
+/// float weights came from (see [`crate::weights`]).
+pub fn write(dir: &std::path::Path, q: &Quantised, float_source: serde_json::Value) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     std::fs::write(dir.join(BLOB_FILE), &q.blob)?;
     let manifest = serde_json::json!({
@@ -363,6 +364,7 @@ pub fn write(dir: &std::path::Path, q: &Quantised) -> Result<()> {
         "blob_bytes": q.blob.len(),
         "blob_crc32": format!("{:#010x}", epssn::crc32::crc32(&q.blob[..q.blob.len() - 4])),
         "rounding": "TFLite MultiplyByQuantizedMultiplier (docs/QUANTISATION.md)",
+        "float_source": float_source,
         "quantisation": q,
     });
     std::fs::write(
@@ -471,7 +473,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         })
         .collect::<Result<Vec<_>>>()?;
     let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
-    write(&args.out, &q)?;
+    write(&args.out, &q, serde_json::json!({ "random_init": seed }))?;
     writeln!(
         out,
         "wrote {} ({} bytes, spec {} {:#010x}) and quantisation.json to {}",

@@ -1,0 +1,551 @@
+//! `host-sim run`: the main job. Pairs the frames of a recording at the roll baseline, runs the
+//! fixed-point library and the float model on every pair, checks the library against the
+//! independent integer reference bit for bit, scores both against ground truth when there is
+//! some, and writes depth PNGs and PLY point clouds.
+//!
+//! With no arguments it runs on the small simulated recording bundled in `data/demo/`.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+use epssn::config;
+use epssn::model::{Model, Workspace};
+use fixed::types::U16F16;
+use serde::Serialize;
+
+use crate::aris::{ArisReader, SystemType};
+use crate::metrics::{self, Metrics};
+use crate::{floatref, npy, polar, preview, reference_model, weights};
+
+/// The bundled demo: a simulated ARIS 3000 recording and its ground truth.
+pub const DEMO_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo");
+
+/// Arguments of `host-sim run`.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// ARIS recording (default: the bundled simulated demo, `data/demo/recording.aris`).
+    #[arg(long)]
+    pub recording: Option<PathBuf>,
+    /// Ground-truth folder with `depth_<frame>.npy` and `mask_<frame>.npy` per reference
+    /// frame (default: `gt/` beside the bundled demo recording).
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+    /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Views per depth map (2 or 3).
+    #[arg(long, default_value_t = 2)]
+    pub views: usize,
+    /// Pair frames by index instead of by roll, `REF:SRC` (repeatable), for recordings
+    /// without rotator roll. The roll between them is assumed to be the baseline.
+    #[arg(long = "pair", value_parser = parse_pair)]
+    pub pairs: Vec<(usize, usize)>,
+    /// Output folder for PNGs, PLYs and `summary.json`.
+    #[arg(long, default_value = "out/run")]
+    pub out: PathBuf,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
+    let (a, b) = s.split_once(':').ok_or("expected REF:SRC")?;
+    Ok((
+        a.trim()
+            .parse()
+            .map_err(|_| format!("bad frame index {a}"))?,
+        b.trim()
+            .parse()
+            .map_err(|_| format!("bad frame index {b}"))?,
+    ))
+}
+
+/// Accuracy of one model over the pairs with ground truth.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Accuracy {
+    /// Mean MAE (paper definition, mm, over the mask).
+    pub mae: Option<f64>,
+    /// Standard deviation of the MAE over pairs.
+    pub mae_std: Option<f64>,
+    /// Mean chamfer distance (paper definition).
+    pub cd: Option<f64>,
+    /// Standard deviation of the CD over pairs.
+    pub cd_std: Option<f64>,
+}
+
+/// One depth map of the run.
+#[derive(Clone, Debug, Serialize)]
+pub struct PairReport {
+    /// Frame indices, reference first.
+    pub frames: Vec<usize>,
+    /// Rolls of those frames, degrees (NaN → null).
+    pub rolls_deg: Vec<Option<f64>>,
+    /// Library equals the integer reference on every layer and the depth map.
+    pub bit_exact: bool,
+    /// Mean |int8 − float| depth, mm, over all pixels.
+    pub int8_vs_float_mae: f64,
+    /// Float model against ground truth.
+    pub float: Option<Metrics>,
+    /// Int8 library against ground truth.
+    pub int8: Option<Metrics>,
+}
+
+/// The run's summary (`--json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    /// Recording read.
+    pub recording: String,
+    /// Weights used.
+    pub weights: String,
+    /// Depth maps computed.
+    pub pairs: usize,
+    /// Float model accuracy.
+    pub float: Accuracy,
+    /// Int8 library accuracy.
+    pub int8: Accuracy,
+    /// Mean over pairs of the mean |int8 − float| depth, mm.
+    pub int8_vs_float_mae: f64,
+    /// Every pair bit-exact against the integer reference.
+    pub bit_exact: bool,
+    /// Per pair.
+    pub details: Vec<PairReport>,
+    /// Warnings (recording, pairing).
+    pub warnings: Vec<String>,
+}
+
+/// Explains why a recording cannot feed the model, or `None` when it fits.
+pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
+    let mut why = Vec::new();
+    let system = reader.system();
+    if system.name() != config::SONAR_SYSTEM {
+        why.push(format!(
+            "sonar is {}, the model is for {}",
+            system.name(),
+            config::SONAR_SYSTEM
+        ));
+    }
+    if reader.telephoto() {
+        why.push("telephoto lens (narrower beams than the model's table)".to_string());
+    }
+    if reader.beams() != config::BEAMS {
+        why.push(format!(
+            "{} beams, the model needs {}",
+            reader.beams(),
+            config::BEAMS
+        ));
+    }
+    if let Ok(frame) = reader.frame(0) {
+        if let Ok(r) = frame.range_geometry() {
+            let end = r.start + r.step * (r.samples.saturating_sub(1)) as f64;
+            // The recording must cover the model's window (within one sample).
+            if r.start > config::R_MIN_M + r.step || end < config::R_MAX_M - r.step {
+                why.push(format!(
+                    "range window {:.3}–{:.3} m does not cover the model's {:.3}–{:.3} m",
+                    r.start,
+                    end,
+                    config::R_MIN_M,
+                    config::R_MAX_M
+                ));
+            }
+        }
+    }
+    let _ = SystemType::Aris3000;
+    Ok((!why.is_empty()).then(|| why.join("; ")))
+}
+
+fn frame_roll(reader: &ArisReader, i: usize) -> Option<f64> {
+    let h = reader.frame_header(i).ok()?;
+    [h.sonar_roll_deg, h.roll_abs_position_deg]
+        .into_iter()
+        .find(|r| r.is_finite())
+        .map(|r| r as f64)
+}
+
+/// Pairs frames by roll: each frame with a later frame `step` (and `2·step` for 3 views) more
+/// rolled, within the spec's tolerance. Each frame is a reference at most once.
+pub fn pair_by_roll(rolls: &[Option<f64>], views: usize) -> Vec<Vec<usize>> {
+    let mut out = Vec::new();
+    for (i, ri) in rolls.iter().enumerate() {
+        let Some(ri) = ri else { continue };
+        let mut group = vec![i];
+        for k in 1..views {
+            let want = ri + config::ROLL_STEP_DEG * k as f64;
+            let found =
+                rolls.iter().enumerate().skip(i + 1).find(|(_, r)| {
+                    r.is_some_and(|r| (r - want).abs() <= config::PAIR_TOLERANCE_DEG)
+                });
+            match found {
+                Some((j, _)) => group.push(j),
+                None => break,
+            }
+        }
+        if group.len() == views {
+            out.push(group);
+        }
+    }
+    out
+}
+
+fn mean_std(v: &[f64]) -> (Option<f64>, Option<f64>) {
+    if v.is_empty() {
+        return (None, None);
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    let s = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt();
+    (Some(m), Some(s))
+}
+
+fn accuracy(ms: &[&Metrics]) -> Accuracy {
+    let (mae, mae_std) = mean_std(
+        &ms.iter()
+            .map(|m| m.mae)
+            .filter(|x| x.is_finite())
+            .collect::<Vec<_>>(),
+    );
+    let (cd, cd_std) = mean_std(
+        &ms.iter()
+            .map(|m| m.cd)
+            .filter(|x| x.is_finite())
+            .collect::<Vec<_>>(),
+    );
+    Accuracy {
+        mae,
+        mae_std,
+        cd,
+        cd_std,
+    }
+}
+
+fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
+    let d = dir.join(format!("depth_{frame:04}.npy"));
+    if !d.exists() {
+        return Ok(None);
+    }
+    let depth = npy::read_f32(&d)?;
+    let mask = npy::read_f32(&dir.join(format!("mask_{frame:04}.npy")))?;
+    ensure!(
+        depth.data.len() == config::DEPTH_LEN && mask.data.len() == config::DEPTH_LEN,
+        "ground truth for frame {frame} is not {}×{}",
+        config::DEPTH_ROWS,
+        config::DEPTH_COLUMNS
+    );
+    Ok(Some((
+        depth.data,
+        mask.data.iter().map(|&m| m > 0.5).collect(),
+    )))
+}
+
+/// Runs `host-sim run`.
+pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
+    ensure!(
+        (2..=config::MAX_VIEWS).contains(&args.views),
+        "--views must be 2..={}",
+        config::MAX_VIEWS
+    );
+    let recording = args
+        .recording
+        .clone()
+        .unwrap_or_else(|| Path::new(DEMO_DIR).join("recording.aris"));
+    let gt_dir = args.gt.clone().or_else(|| {
+        args.recording
+            .is_none()
+            .then(|| Path::new(DEMO_DIR).join("gt"))
+    });
+    let weights_dir = match &args.weights {
+        Some(w) => w.clone(),
+        None => weights::firmware_weights_dir()?,
+    };
+    let reader =
+        ArisReader::open(&recording).with_context(|| format!("opening {}", recording.display()))?;
+    let mut warnings: Vec<String> = reader.warnings().to_vec();
+    if let Some(why) = geometry_mismatch(&reader)? {
+        bail!(
+            "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
+             wrong, so nothing was computed.",
+            recording.display(),
+            config::SPEC_NAME
+        );
+    }
+    let rolls: Vec<Option<f64>> = (0..reader.frame_count())
+        .map(|i| frame_roll(&reader, i))
+        .collect();
+    let groups = if args.pairs.is_empty() {
+        pair_by_roll(&rolls, args.views)
+    } else {
+        ensure!(
+            args.views == 2,
+            "--pair gives two-view pairs; drop --views 3"
+        );
+        warnings.push(format!(
+            "pairs given by index: the roll between them is assumed to be the {} ° baseline",
+            config::ROLL_STEP_DEG
+        ));
+        for &(a, b) in &args.pairs {
+            ensure!(
+                a < reader.frame_count() && b < reader.frame_count(),
+                "pair {a}:{b}: the recording has {} frames",
+                reader.frame_count()
+            );
+        }
+        args.pairs.iter().map(|&(a, b)| vec![a, b]).collect()
+    };
+    if groups.is_empty() {
+        bail!(
+            "no frames of {} pair at the {} ° roll baseline (±{} °); give --pair REF:SRC for \
+             recordings without rotator roll",
+            recording.display(),
+            config::ROLL_STEP_DEG,
+            config::PAIR_TOLERANCE_DEG
+        );
+    }
+    let bundle = weights::load(&weights_dir)?;
+    let model = Model::from_blob(&bundle.blob)
+        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
+    std::fs::create_dir_all(&args.out)?;
+
+    // Per-frame caches: each frame's polar image and int8 features are computed once.
+    let mut ws = Box::new(Workspace::new());
+    let mut images: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
+    let mut features: BTreeMap<usize, Vec<i8>> = BTreeMap::new();
+    for &f in groups.iter().flatten() {
+        if features.contains_key(&f) {
+            continue;
+        }
+        let img = polar::frame_to_polar(&reader.frame(f)?)?;
+        let mut feat = vec![0i8; config::FEATURE_LEN];
+        model
+            .features(&img, &mut ws, &mut feat)
+            .map_err(|e| anyhow::anyhow!("features of frame {f}: {e:?}"))?;
+        images.insert(f, img);
+        features.insert(f, feat);
+    }
+
+    let mut details = Vec::new();
+    for group in &groups {
+        let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
+        let sources: Vec<&[i8]> = group[1..].iter().map(|f| features[f].as_slice()).collect();
+        let mut depth_q = vec![U16F16::ZERO; config::DEPTH_LEN];
+        model
+            .depth_from_features(&features[&group[0]], &sources, &mut ws, &mut depth_q)
+            .map_err(|e| anyhow::anyhow!("depth of frames {group:?}: {e:?}"))?;
+        let reference = reference_model::run(&bundle.blob, &views)?;
+        let bits: Vec<u32> = depth_q.iter().map(|d| d.to_bits()).collect();
+        let bit_exact = bits == reference.depth
+            && group
+                .iter()
+                .zip(&reference.features)
+                .all(|(f, layers)| layers.values().last().is_some_and(|v| v == &features[f]));
+        let depth_int8: Vec<f32> = depth_q.iter().map(|d| d.to_num::<f32>()).collect();
+        let depth_float = floatref::run(&bundle.float, &views)?.depth;
+        let int8_vs_float_mae = 1000.0
+            * depth_int8
+                .iter()
+                .zip(&depth_float)
+                .map(|(a, b)| (a - b).abs() as f64)
+                .sum::<f64>()
+            / config::DEPTH_LEN as f64;
+        let gt = match &gt_dir {
+            Some(dir) => load_gt(dir, group[0])?,
+            None => None,
+        };
+        let (float_m, int8_m) = match &gt {
+            Some((d, m)) => (
+                Some(metrics::evaluate(&depth_float, d, m)?),
+                Some(metrics::evaluate(&depth_int8, d, m)?),
+            ),
+            None => (None, None),
+        };
+        let name = format!("frame{:04}", group[0]);
+        let all = vec![1.0f32; config::DEPTH_LEN];
+        let mask_f: Vec<f32> = match &gt {
+            Some((_, m)) => m.iter().map(|&b| b as u8 as f32).collect(),
+            None => all.clone(),
+        };
+        let mut row = vec![
+            preview::depth_image(&depth_int8, &all, 4),
+            preview::depth_image(&depth_float, &all, 4),
+        ];
+        if let Some((d, _)) = &gt {
+            row.push(preview::depth_image(d, &mask_f, 4));
+        }
+        preview::save_png(
+            &preview::hstack(&row),
+            &args.out.join(format!("{name}_depth.png")),
+        )?;
+        let keep: Vec<bool> = match &gt {
+            Some((_, m)) => m.clone(),
+            None => depth_int8
+                .iter()
+                .map(|&d| (d as f64) < config::R_MAX_M - 1e-3)
+                .collect(),
+        };
+        metrics::write_ply(
+            &args.out.join(format!("{name}_int8.ply")),
+            &metrics::depth_points(&depth_int8, &keep)?,
+            Some([255, 140, 0]),
+        )?;
+        metrics::write_ply(
+            &args.out.join(format!("{name}_float.ply")),
+            &metrics::depth_points(&depth_float, &keep)?,
+            Some([0, 160, 255]),
+        )?;
+        details.push(PairReport {
+            frames: group.clone(),
+            rolls_deg: group.iter().map(|&f| rolls[f]).collect(),
+            bit_exact,
+            int8_vs_float_mae,
+            float: float_m,
+            int8: int8_m,
+        });
+    }
+    let summary = Summary {
+        recording: recording.display().to_string(),
+        weights: weights_dir.display().to_string(),
+        pairs: details.len(),
+        float: accuracy(
+            &details
+                .iter()
+                .filter_map(|d| d.float.as_ref())
+                .collect::<Vec<_>>(),
+        ),
+        int8: accuracy(
+            &details
+                .iter()
+                .filter_map(|d| d.int8.as_ref())
+                .collect::<Vec<_>>(),
+        ),
+        int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
+            / details.len() as f64,
+        bit_exact: details.iter().all(|d| d.bit_exact),
+        details,
+        warnings,
+    };
+    std::fs::write(
+        args.out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?,
+    )?;
+    if args.json {
+        writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
+    } else {
+        print_summary(&summary, &bundle.description, &args.out, out)?;
+    }
+    Ok(())
+}
+
+fn fmt_acc(a: &Accuracy) -> String {
+    match (a.mae, a.mae_std, a.cd, a.cd_std) {
+        (Some(m), Some(ms), Some(c), Some(cs)) => {
+            format!("MAE {m:.2} ± {ms:.2} mm, CD {c:.4} ± {cs:.4}")
+        }
+        _ => "no ground truth".to_string(),
+    }
+}
+
+fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -> Result<()> {
+    writeln!(out, "recording: {}", s.recording)?;
+    writeln!(out, "weights:   {} ({weights})", s.weights)?;
+    writeln!(out, "depth maps: {}", s.pairs)?;
+    for d in &s.details {
+        writeln!(
+            out,
+            "  frames {:?}: bit-exact {}, int8 vs float {:.2} mm{}",
+            d.frames,
+            if d.bit_exact { "yes" } else { "NO" },
+            d.int8_vs_float_mae,
+            match (&d.float, &d.int8) {
+                (Some(f), Some(q)) => format!(
+                    ", float MAE {:.2} mm CD {:.4}, int8 MAE {:.2} mm CD {:.4}",
+                    f.mae, f.cd, q.mae, q.cd
+                ),
+                _ => String::new(),
+            }
+        )?;
+    }
+    writeln!(out, "float:  {}", fmt_acc(&s.float))?;
+    writeln!(out, "int8:   {}", fmt_acc(&s.int8))?;
+    writeln!(
+        out,
+        "int8 vs float: {:.2} mm mean absolute depth difference",
+        s.int8_vs_float_mae
+    )?;
+    writeln!(
+        out,
+        "library vs integer reference: {}",
+        if s.bit_exact {
+            "bit-exact on every pair"
+        } else {
+            "MISMATCH"
+        }
+    )?;
+    for w in &s.warnings {
+        writeln!(out, "warning: {w}")?;
+    }
+    writeln!(
+        out,
+        "wrote depth PNGs, PLY point clouds and summary.json to {}",
+        dir.display()
+    )?;
+    if !s.bit_exact {
+        bail!("the library differs from the integer reference");
+    }
+    Ok(())
+}
+
+/// Arguments of `host-sim bundle`.
+#[derive(clap::Args, Debug)]
+pub struct BundleArgs {
+    /// Simulated sample folders (`DIR/<split>/<index>/`), in the order to record them.
+    #[arg(required = true)]
+    pub samples: Vec<PathBuf>,
+    /// Output folder: `recording.aris` and `gt/`.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// `host-sim bundle`: concatenates simulated samples into one ARIS recording (each sample's
+/// views in roll order, as a rotating sonar would record them) with the ground truth of every
+/// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`.
+pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
+    let gt = args.out.join("gt");
+    std::fs::create_dir_all(&gt)?;
+    let mut frames: Vec<(crate::aris::FrameHeader, Vec<u8>)> = Vec::new();
+    for dir in &args.samples {
+        let sample = crate::dataset::Sample::load(dir)?;
+        let reference = frames.len();
+        for k in 0..sample.polar_views.len() {
+            let path = dir.join(format!("view{k}.aris"));
+            let r =
+                ArisReader::open(&path).with_context(|| format!("opening {}", path.display()))?;
+            let f = r.frame(0)?;
+            let mut h = f.header.clone();
+            h.frame_index = frames.len() as u32;
+            h.frame_time_us = 1_700_000_000_000_000 + frames.len() as u64 * 100_000;
+            frames.push((h, f.data));
+        }
+        let shape = [config::DEPTH_ROWS, config::DEPTH_COLUMNS];
+        npy::write_f32(
+            &gt.join(format!("depth_{reference:04}.npy")),
+            &shape,
+            &sample.depth,
+        )?;
+        npy::write_f32(
+            &gt.join(format!("mask_{reference:04}.npy")),
+            &shape,
+            &sample.mask,
+        )?;
+    }
+    let refs: Vec<(&crate::aris::FrameHeader, &[u8])> =
+        frames.iter().map(|(h, d)| (h, d.as_slice())).collect();
+    let path = args.out.join("recording.aris");
+    crate::aris::write_recording(&path, &refs)?;
+    writeln!(
+        out,
+        "wrote {} frames to {} and ground truth to {}",
+        frames.len(),
+        path.display(),
+        gt.display()
+    )?;
+    Ok(())
+}

@@ -1,0 +1,85 @@
+//! The main job end to end on the bundled demo recording, and its refusal of a recording
+//! whose geometry does not fit the model.
+
+use std::process::Command;
+
+fn host_sim() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_host-sim"))
+}
+
+#[test]
+fn demo_run_is_bit_exact_and_scores_both_models() {
+    let out = tempfile::tempdir().unwrap();
+    let o = host_sim()
+        .args(["run", "--json", "--out"])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["pairs"], 6);
+    assert_eq!(v["bit_exact"], true);
+    for model in ["float", "int8"] {
+        let mae = v[model]["mae"].as_f64().unwrap();
+        let cd = v[model]["cd"].as_f64().unwrap();
+        assert!(mae.is_finite() && mae > 0.0 && cd.is_finite() && cd > 0.0);
+    }
+    assert!(v["int8_vs_float_mae"].as_f64().unwrap().is_finite());
+    for f in [
+        "frame0000_depth.png",
+        "frame0000_int8.ply",
+        "frame0000_float.ply",
+        "summary.json",
+    ] {
+        assert!(out.path().join(f).exists(), "{f} missing");
+    }
+    // Frames pair at the roll baseline: each pair is (reference, reference + 1).
+    for d in v["details"].as_array().unwrap() {
+        let f = d["frames"].as_array().unwrap();
+        assert_eq!(f[1].as_u64().unwrap(), f[0].as_u64().unwrap() + 1);
+        let r = d["rolls_deg"].as_array().unwrap();
+        assert!((r[1].as_f64().unwrap() - r[0].as_f64().unwrap() - 7.0).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn real_aris1200_recording_is_refused_with_an_explanation() {
+    let rec = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../data/aris1200-telephoto-6frames.aris"
+    );
+    let out = tempfile::tempdir().unwrap();
+    let o = host_sim()
+        .args(["run", "--recording", rec, "--pair", "0:1", "--out"])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("ARIS 1200") && err.contains("telephoto"),
+        "{err}"
+    );
+    assert!(o.stdout.is_empty());
+}
+
+#[test]
+fn pairing_by_roll_follows_the_baseline_and_tolerance() {
+    use host_sim::run::pair_by_roll;
+    let rolls = [
+        Some(0.0),
+        Some(7.2),
+        Some(0.1),
+        Some(14.0),
+        None,
+        Some(7.0),
+        Some(6.0),
+    ];
+    assert_eq!(
+        pair_by_roll(&rolls, 2),
+        vec![vec![0, 1], vec![1, 3], vec![2, 5]]
+    );
+    // Views of a group need not be in time order: frame 3 (14°) serves the 0.1° reference too.
+    assert_eq!(pair_by_roll(&rolls, 3), vec![vec![0, 1, 3], vec![2, 5, 3]]);
+    assert!(pair_by_roll(&[None, None], 2).is_empty());
+}
