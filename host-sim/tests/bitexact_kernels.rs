@@ -5,8 +5,8 @@
 
 use epssn::config::{self, LayerKind, LayerShape, LAYERS};
 use epssn::geometry::WarpEntry;
-use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
-use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
+use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain, conv2d_s8_rows};
+use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain, conv3d_s8_rows};
 use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
 use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
 use epssn::kernels::soft_argmax_s8::{
@@ -105,19 +105,23 @@ fn check_conv(
     let want = intref::conv(sh, input, &l.w, &l.b, &l.m, input_offset, relu);
     let cs = conv_shape(sh);
     let p = params(l, input_offset, relu);
-    let (mut opt, mut plain) = (vec![0i8; want.len()], vec![0i8; want.len()]);
+    let n = want.len();
+    let (mut opt, mut plain, mut rows) = (vec![0i8; n], vec![0i8; n], vec![0i8; n]);
     match kind {
         LayerKind::Conv2d => {
             conv2d_s8(&cs, input, &p, &mut opt).unwrap();
             conv2d_s8_plain(&cs, input, &p, &mut plain).unwrap();
+            conv2d_s8_rows(&cs, input, &p, &mut rows).unwrap();
         }
         _ => {
             conv3d_s8(&cs, input, &p, &mut opt).unwrap();
             conv3d_s8_plain(&cs, input, &p, &mut plain).unwrap();
+            conv3d_s8_rows(&cs, input, &p, &mut rows).unwrap();
         }
     }
     assert_eq!(opt, want, "{what}: optimised vs reference");
     assert_eq!(plain, want, "{what}: plain vs reference");
+    assert_eq!(rows, want, "{what}: row-blocked vs reference");
     want
 }
 

@@ -60,9 +60,12 @@ pub fn conv3d_s8_plain(
     Ok(())
 }
 
-/// Optimised: two output channels per pass share every input load; valid tap ranges are
-/// computed once per plane/row/column, so the interior and the border run the same
-/// branch-free loops over contiguous kernel rows.
+/// Optimised. When the taps of one output (`I · kd · kh · kw`) fit [`COL_LEN`], the inputs
+/// of two output positions are gathered once into i16 column buffers on the stack (offset
+/// added, padding 0; CMSIS-NN's im2col), then every pair of output channels runs a
+/// 2 positions × 2 channels dot product over them: 2 input and 2 weight loads feed 4 MACs,
+/// and the contiguous weights `[O][K]` need no index arithmetic. Larger layers fall back to
+/// [`conv3d_s8_rows`].
 pub fn conv3d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -70,6 +73,30 @@ pub fn conv3d_s8(
     output: &mut [i8],
 ) -> Result<(), KernelError> {
     check_conv(shape, input.len(), params, output.len())?;
+    if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
+        im2col_engine(shape, input, params, output);
+    } else {
+        rows_engine(shape, input, params, output);
+    }
+    Ok(())
+}
+
+/// The row-blocked variant: two output channels per pass share every input load; valid
+/// tap ranges are computed once per plane/row/column, so the interior and the border run
+/// the same branch-free loops over contiguous kernel rows. No stack buffer; used for layers
+/// whose taps exceed [`COL_LEN`].
+pub fn conv3d_s8_rows(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    output: &mut [i8],
+) -> Result<(), KernelError> {
+    check_conv(shape, input.len(), params, output.len())?;
+    rows_engine(shape, input, params, output);
+    Ok(())
+}
+
+fn rows_engine(shape: &ConvShape, input: &[i8], params: &ConvParams<'_>, output: &mut [i8]) {
     let oc = shape.out_channels;
     let mut o = 0;
     while o + 2 <= oc {
@@ -79,7 +106,138 @@ pub fn conv3d_s8(
     if o < oc {
         block::<1>(shape, input, params, output, o);
     }
-    Ok(())
+}
+
+/// Most taps per output the im2col path gathers (2 buffers of i16: 2 KiB of stack).
+pub const COL_LEN: usize = 512;
+
+/// Fills `col[..K]` with the offset inputs of output position `(z, y, x)`, 0 at padding.
+#[inline(always)]
+fn gather(
+    shape: &ConvShape,
+    input: &[i8],
+    off: i16,
+    (z, y, x): (usize, usize, usize),
+    col: &mut [i16],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [pd, ph, pw] = shape.padding;
+    let (kz_lo, kz_hi) = tap_range(z, sd, pd, kd, id);
+    let (ky_lo, ky_hi) = tap_range(y, sh, ph, kh, ih);
+    let (kx_lo, kx_hi) = tap_range(x, sw, pw, kw, iw);
+    let interior =
+        kz_lo == 0 && ky_lo == 0 && kx_lo == 0 && kz_hi == kd && ky_hi == kh && kx_hi == kw;
+    if !interior {
+        col.fill(0);
+    }
+    if kx_lo >= kx_hi {
+        return;
+    }
+    let len = kx_hi - kx_lo;
+    let ix0 = x * sw + kx_lo - pw;
+    for i in 0..shape.in_channels {
+        for kz in kz_lo..kz_hi {
+            let iz = z * sd + kz - pd;
+            for ky in ky_lo..ky_hi {
+                let iy = y * sh + ky - ph;
+                let src = &input[((i * id + iz) * ih + iy) * iw + ix0..][..len];
+                let dst = &mut col[((i * kd + kz) * kh + ky) * kw + kx_lo..][..len];
+                for (d, &s) in dst.iter_mut().zip(src) {
+                    *d = s as i16 + off;
+                }
+            }
+        }
+    }
+}
+
+/// `acc[n] += Σ_t col[t] · ws[n][t]` (all slices of equal length): one position.
+#[inline(always)]
+fn dot<const N: usize>(col: &[i16], ws: [&[i8]; N], mut acc: [i32; N]) -> [i32; N] {
+    for (a, w) in acc.iter_mut().zip(ws) {
+        for (&c, &w) in col.iter().zip(w) {
+            *a += c as i32 * w as i32;
+        }
+    }
+    acc
+}
+
+/// `(a0, a1) += Σ_t (low(cols[t]), high(cols[t])) · w[t]`: two output positions packed as
+/// i16 halves, one output channel. One word load and one weight load feed two MACs
+/// (SMLABB/SMLATB on Cortex-M7); two accumulators leave LLVM's 4× unroll enough registers.
+#[inline(always)]
+fn dot_packed(cols: &[u32], w: &[i8], acc: [i32; 2]) -> [i32; 2] {
+    let [mut a0, mut a1] = acc;
+    for (&c, &w) in cols.iter().zip(w) {
+        let w = w as i32;
+        a0 += (c as u16 as i16 as i32) * w;
+        a1 += ((c as i32) >> 16) * w;
+    }
+    [a0, a1]
+}
+
+pub(crate) fn im2col_engine(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    output: &mut [i8],
+) {
+    let [_, oh, ow] = shape.out_size;
+    let k = shape.in_channels * shape.kernel.iter().product::<usize>();
+    let positions = shape.out_size.iter().product::<usize>();
+    let oc = shape.out_channels;
+    // |offset| ≤ 255 is validated, so offset inputs fit i16.
+    let off = params.input_offset as i16;
+    let mut col0 = [0i16; COL_LEN];
+    let mut col1 = [0i16; COL_LEN];
+    let mut packed = [0u32; COL_LEN];
+    let at = |p: usize| (p / (oh * ow), (p / ow) % oh, p % ow);
+    let mut p = 0;
+    while p < positions {
+        let pair = p + 1 < positions;
+        gather(shape, input, off, at(p), &mut col0[..k]);
+        if pair {
+            gather(shape, input, off, at(p + 1), &mut col1[..k]);
+        }
+        let (c0, c1) = (&col0[..k], &col1[..k]);
+        if pair {
+            // Both positions' values of tap t in one word: one load feeds 2 MACs per
+            // channel (SMLABB/SMLATB on the halves).
+            for ((w, &a), &b) in packed[..k].iter_mut().zip(c0).zip(c1) {
+                *w = (a as u16 as u32) | ((b as u16 as u32) << 16);
+            }
+            let out_pos = &mut output[p..];
+            for o in 0..oc {
+                let w = &params.weights[o * k..(o + 1) * k];
+                let b = params.bias[o];
+                let acc = dot_packed(&packed[..k], w, [b, b]);
+                for (q, &a) in acc.iter().enumerate() {
+                    let t = params.requant[o].apply(a);
+                    out_pos[o * positions + q] = finish(t, params.relu, None);
+                }
+            }
+        } else {
+            // The last, unpaired position: two channels at a time.
+            let mut o = 0;
+            while o < oc {
+                let n = if o + 1 < oc { 2 } else { 1 };
+                let w0 = &params.weights[o * k..(o + 1) * k];
+                let acc = if n == 2 {
+                    let w1 = &params.weights[(o + 1) * k..(o + 2) * k];
+                    dot::<2>(c0, [w0, w1], [params.bias[o], params.bias[o + 1]])
+                } else {
+                    [dot::<1>(c0, [w0], [params.bias[o]])[0], 0]
+                };
+                for (m, &a) in acc.iter().enumerate().take(n) {
+                    let t = params.requant[o + m].apply(a);
+                    output[(o + m) * positions + p] = finish(t, params.relu, None);
+                }
+                o += n;
+            }
+        }
+        p += if pair { 2 } else { 1 };
+    }
 }
 
 /// Valid taps `lo..hi` of output position `out` on one axis: `0 <= out·s + k − p < n`.
@@ -197,6 +355,8 @@ mod tests {
             conv3d_s8_plain(&shape, &input, &p, &mut a).unwrap();
             conv3d_s8(&shape, &input, &p, &mut o).unwrap();
             assert_eq!(a, o, "case {case}: {shape:?}");
+            conv3d_s8_rows(&shape, &input, &p, &mut o).unwrap();
+            assert_eq!(a, o, "rows, case {case}: {shape:?}");
         }
     }
 
@@ -219,6 +379,37 @@ mod tests {
         conv3d_s8(&shape, &input, &p, &mut o).unwrap();
         assert_eq!(a, o);
         assert!(a.iter().any(|&v| v != a[0]));
+        conv3d_s8_rows(&shape, &input, &p, &mut o).unwrap();
+        assert_eq!(a, o);
+    }
+
+    #[test]
+    fn layer_too_large_for_the_column_buffer_takes_the_row_path() {
+        let mut rng = Rng(21);
+        let shape = ConvShape {
+            in_channels: 20,
+            out_channels: 3,
+            kernel: [3, 3, 3],
+            stride: [1, 2, 1],
+            padding: [1, 1, 1],
+            output_padding: [0; 3],
+            in_size: [3, 4, 5],
+            out_size: [3, 2, 5],
+        };
+        const { assert!(20 * 27 > COL_LEN) };
+        let (w, b, r) = params(&mut rng, &shape);
+        let input = rng.i8s(20 * 60);
+        let p = ConvParams {
+            weights: &w,
+            bias: &b,
+            requant: &r,
+            input_offset: 0,
+            relu: false,
+        };
+        let (mut a, mut o) = (vec![0i8; 90], vec![0i8; 90]);
+        conv3d_s8_plain(&shape, &input, &p, &mut a).unwrap();
+        conv3d_s8(&shape, &input, &p, &mut o).unwrap();
+        assert_eq!(a, o);
     }
 
     #[test]
