@@ -167,7 +167,7 @@ fn dot<const N: usize>(col: &[i16], ws: [&[i8]; N], mut acc: [i32; N]) -> [i32; 
 /// i16 halves, one output channel. One word load and one weight load feed two MACs
 /// (SMLABB/SMLATB on Cortex-M7); two accumulators leave LLVM's 4× unroll enough registers.
 #[inline(always)]
-fn dot_packed(cols: &[u32], w: &[i8], acc: [i32; 2]) -> [i32; 2] {
+pub(crate) fn dot_packed(cols: &[u32], w: &[i8], acc: [i32; 2]) -> [i32; 2] {
     let [mut a0, mut a1] = acc;
     for (&c, &w) in cols.iter().zip(w) {
         let w = w as i32;
