@@ -163,18 +163,94 @@ fn dot<const N: usize>(col: &[i16], ws: [&[i8]; N], mut acc: [i32; N]) -> [i32; 
     acc
 }
 
-/// `(a0, a1) += Σ_t (low(cols[t]), high(cols[t])) · w[t]`: two output positions packed as
-/// i16 halves, one output channel. One word load and one weight load feed two MACs
-/// (SMLABB/SMLATB on Cortex-M7); two accumulators leave LLVM's 4× unroll enough registers.
-#[inline(always)]
-pub(crate) fn dot_packed(cols: &[u32], w: &[i8], acc: [i32; 2]) -> [i32; 2] {
-    let [mut a0, mut a1] = acc;
-    for (&c, &w) in cols.iter().zip(w) {
-        let w = w as i32;
-        a0 += (c as u16 as i16 as i32) * w;
-        a1 += ((c as i32) >> 16) * w;
+/// The gathered columns of two output positions (`k ≤ COL_LEN` taps each), laid out for
+/// the build's dot product.
+///
+/// Portable build: one word per tap holding both positions' values (`lo` = position 0), so
+/// one word load and one weight load feed two MACs (SMLABB/SMLATB on Cortex-M7; two
+/// accumulators leave LLVM's 4× unroll enough registers).
+///
+/// `dsp` build (CMSIS-NN style): per position and per group of 4 taps the words
+/// `(c0, c2)` and `(c1, c3)`, matching `SXTB16` / `SXTB16 ROR 8` of 4 weight bytes, so
+/// one weight word and two `SMLAD` give 4 MACs of one position; the last `k mod 4` taps
+/// stay scalar.
+pub(crate) struct PairColumns {
+    k: usize,
+    #[cfg(not(feature = "dsp"))]
+    words: [u32; COL_LEN],
+    #[cfg(feature = "dsp")]
+    pairs: [[u32; COL_LEN / 2]; 2],
+    #[cfg(feature = "dsp")]
+    tail: [[i16; 4]; 2],
+}
+
+impl PairColumns {
+    pub(crate) fn new() -> Self {
+        PairColumns {
+            k: 0,
+            #[cfg(not(feature = "dsp"))]
+            words: [0; COL_LEN],
+            #[cfg(feature = "dsp")]
+            pairs: [[0; COL_LEN / 2]; 2],
+            #[cfg(feature = "dsp")]
+            tail: [[0; 4]; 2],
+        }
     }
-    [a0, a1]
+
+    /// Packs the columns `c0`, `c1` (equal lengths, at most [`COL_LEN`]).
+    #[inline(always)]
+    pub(crate) fn pack(&mut self, c0: &[i16], c1: &[i16]) {
+        self.k = c0.len().min(c1.len()).min(COL_LEN);
+        #[cfg(not(feature = "dsp"))]
+        for ((w, &a), &b) in self.words[..self.k].iter_mut().zip(c0).zip(c1) {
+            *w = crate::dsp::pack(a, b);
+        }
+        #[cfg(feature = "dsp")]
+        for (p, c) in [c0, c1].into_iter().enumerate() {
+            let groups = self.k / 4;
+            let (head, tail) = c[..self.k].split_at(groups * 4);
+            for (g, w) in head.chunks_exact(4).zip(self.pairs[p].chunks_exact_mut(2)) {
+                w[0] = crate::dsp::pack(g[0], g[2]);
+                w[1] = crate::dsp::pack(g[1], g[3]);
+            }
+            self.tail[p] = [0; 4];
+            self.tail[p][..tail.len()].copy_from_slice(tail);
+        }
+    }
+
+    /// `acc[p] += Σ_t column_p[t] · w[t]` for the two positions (`w` has `k` weights).
+    #[inline(always)]
+    pub(crate) fn dot(&self, w: &[i8], acc: [i32; 2]) -> [i32; 2] {
+        let [mut a0, mut a1] = acc;
+        #[cfg(not(feature = "dsp"))]
+        for (&c, &w) in self.words[..self.k].iter().zip(w) {
+            let w = w as i32;
+            a0 += (c as u16 as i16 as i32) * w;
+            a1 += ((c as i32) >> 16) * w;
+        }
+        #[cfg(feature = "dsp")]
+        {
+            use crate::dsp::{smlad, sxtb16, sxtb16_ror8};
+            let groups = self.k / 4;
+            let (wg, wt) = w[..self.k.min(w.len())].split_at(groups * 4);
+            let (p0, p1) = (&self.pairs[0][..2 * groups], &self.pairs[1][..2 * groups]);
+            for ((w4, x0), x1) in wg
+                .chunks_exact(4)
+                .zip(p0.chunks_exact(2))
+                .zip(p1.chunks_exact(2))
+            {
+                let word = u32::from_le_bytes([w4[0] as u8, w4[1] as u8, w4[2] as u8, w4[3] as u8]);
+                let (even, odd) = (sxtb16(word), sxtb16_ror8(word));
+                a0 = smlad(x0[1], odd, smlad(x0[0], even, a0));
+                a1 = smlad(x1[1], odd, smlad(x1[0], even, a1));
+            }
+            for ((&w, &t0), &t1) in wt.iter().zip(&self.tail[0]).zip(&self.tail[1]) {
+                a0 += t0 as i32 * w as i32;
+                a1 += t1 as i32 * w as i32;
+            }
+        }
+        [a0, a1]
+    }
 }
 
 pub(crate) fn im2col_engine(
@@ -191,7 +267,7 @@ pub(crate) fn im2col_engine(
     let off = params.input_offset as i16;
     let mut col0 = [0i16; COL_LEN];
     let mut col1 = [0i16; COL_LEN];
-    let mut packed = [0u32; COL_LEN];
+    let mut packed = PairColumns::new();
     let at = |p: usize| (p / (oh * ow), (p / ow) % oh, p % ow);
     let mut p = 0;
     while p < positions {
@@ -202,16 +278,12 @@ pub(crate) fn im2col_engine(
         }
         let (c0, c1) = (&col0[..k], &col1[..k]);
         if pair {
-            // Both positions' values of tap t in one word: one load feeds 2 MACs per
-            // channel (SMLABB/SMLATB on the halves).
-            for ((w, &a), &b) in packed[..k].iter_mut().zip(c0).zip(c1) {
-                *w = (a as u16 as u32) | ((b as u16 as u32) << 16);
-            }
+            packed.pack(c0, c1);
             let out_pos = &mut output[p..];
             for o in 0..oc {
                 let w = &params.weights[o * k..(o + 1) * k];
                 let b = params.bias[o];
-                let acc = dot_packed(&packed[..k], w, [b, b]);
+                let acc = packed.dot(w, [b, b]);
                 for (q, &a) in acc.iter().enumerate() {
                     let t = params.requant[o].apply(a);
                     out_pos[o * positions + q] = finish(t, params.relu, None);

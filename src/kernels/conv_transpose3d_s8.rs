@@ -11,7 +11,7 @@
 //! MACs: `I · D · H · W · O · kd · kh · kw` (the scatter count; taps falling outside the
 //! output are skipped).
 
-use super::conv3d_s8::dot_packed;
+use super::conv3d_s8::PairColumns;
 use super::{check_conv_transpose, check_skip, finish, ConvParams, ConvShape, KernelError, Skip};
 use crate::requant::Requant;
 
@@ -208,7 +208,7 @@ fn phase_engine(
     let off = params.input_offset as i16;
     let mut wbuf = [0i8; PHASE_WEIGHTS_LEN];
     let mut cols = [[0i16; PHASE_COL_LEN]; 2];
-    let mut packed = [0u32; PHASE_COL_LEN];
+    let mut packed = PairColumns::new();
     // First output coordinate of phase f on an axis, and how many there are.
     let first = |f: usize, s: usize, p: usize, n: usize| {
         let z0 = (f + s - p % s) % s;
@@ -276,16 +276,10 @@ fn phase_engine(
                     if count == 1 {
                         cols[1][..kp].fill(0);
                     }
-                    for ((w, &a), &b) in packed[..kp]
-                        .iter_mut()
-                        .zip(&cols[0][..kp])
-                        .zip(&cols[1][..kp])
-                    {
-                        *w = (a as u16 as u32) | ((b as u16 as u32) << 16);
-                    }
+                    packed.pack(&cols[0][..kp], &cols[1][..kp]);
                     for o in 0..oc {
                         let b = params.bias[o];
-                        let acc = dot_packed(&packed[..kp], &wbuf[o * kp..(o + 1) * kp], [b, b]);
+                        let acc = packed.dot(&wbuf[o * kp..(o + 1) * kp], [b, b]);
                         for (j, &a) in acc.iter().enumerate().take(count) {
                             let (z, y, x) = pos[j];
                             let idx = o * out_plane + (z * oh + y) * ow + x;
