@@ -1,0 +1,139 @@
+//! Runs the epssn kernels built with the `dsp` feature (SMLAD/SXTB16 inline assembly) on a
+//! QEMU Cortex-M7 and compares them with the plain kernels, bit for bit, on every EPSSN-S
+//! layer (random weights; random, all-127 and all-−128 inputs).
+//!
+//! Run: `cd qemu-check && cargo run --release` (needs `qemu-system-arm`; exits non-zero on
+//! any mismatch). A standalone crate so the library workspace stays host-only.
+#![no_std]
+#![no_main]
+
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use epssn::config;
+use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
+use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
+use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
+use epssn::kernels::{ConvParams, ConvShape, Skip};
+use epssn::requant::Requant;
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn fill(&mut self, b: &mut [i8]) {
+        for x in b {
+            *x = self.next() as i8;
+        }
+    }
+}
+
+const MAXW: usize = 16 * 16 * 27;
+const MAXA: usize = 131072;
+
+#[entry]
+fn main() -> ! {
+    let mut rng = Rng(0x1234_5678_9abc_def1);
+    let mut w = [0i8; MAXW];
+    let mut input = [0i8; MAXA];
+    let mut a = [0i8; MAXA];
+    let mut b = [0i8; MAXA];
+    let mut bias = [0i32; 16];
+    let mut rq = [Requant::default(); 16];
+    let mut failures = 0u32;
+    let mut checked = 0u32;
+    for round in 0..3 {
+        for l in config::LAYERS.iter() {
+            let shape = ConvShape::from(l);
+            rng.fill(&mut w[..l.weight_len()]);
+            for w in w[..l.weight_len()].iter_mut() {
+                if *w == -128 {
+                    *w = -127;
+                }
+            }
+            for o in 0..l.out_channels {
+                bias[o] = (rng.next() % 40_001) as i32 - 20_000;
+                rq[o] = Requant {
+                    multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
+                    shift: -7 - (rng.next() % 3) as i32,
+                };
+            }
+            let p = ConvParams {
+                weights: &w[..l.weight_len()],
+                bias: &bias[..l.out_channels],
+                requant: &rq[..l.out_channels],
+                input_offset: if l.name == "f0" { 128 } else { 0 },
+                relu: l.relu,
+            };
+            let n_in = l.input_len();
+            let n_out = l.output_len();
+            if n_in > MAXA || n_out > MAXA {
+                continue;
+            }
+            match round {
+                0 => rng.fill(&mut input[..n_in]),
+                1 => input[..n_in].fill(127),
+                _ => input[..n_in].fill(-128),
+            }
+            let skip_rq = Requant {
+                multiplier: 1 << 30,
+                shift: 1,
+            };
+            let (ra, rb) = match l.kind {
+                config::LayerKind::Conv2d => (
+                    conv2d_s8(&shape, &input[..n_in], &p, &mut a[..n_out]),
+                    conv2d_s8_plain(&shape, &input[..n_in], &p, &mut b[..n_out]),
+                ),
+                config::LayerKind::Conv3d => (
+                    conv3d_s8(&shape, &input[..n_in], &p, &mut a[..n_out]),
+                    conv3d_s8_plain(&shape, &input[..n_in], &p, &mut b[..n_out]),
+                ),
+                config::LayerKind::ConvTranspose3d => {
+                    rng.fill(&mut a[..n_out]);
+                    b[..n_out].copy_from_slice(&a[..n_out]);
+                    let s = Skip::InPlace { requant: skip_rq };
+                    (
+                        conv_transpose3d_s8(&shape, &input[..n_in], &p, s, &mut a[..n_out]),
+                        conv_transpose3d_s8_plain(&shape, &input[..n_in], &p, s, &mut b[..n_out]),
+                    )
+                }
+            };
+            checked += 1;
+            let same = ra.is_ok() && rb.is_ok() && a[..n_out] == b[..n_out];
+            let distinct = {
+                let mut seen = [false; 256];
+                for &x in &a[..n_out] {
+                    seen[(x as i32 + 128) as usize] = true;
+                }
+                seen.iter().filter(|&&s| s).count()
+            };
+            hprintln!(
+                "round {} {}: {} ({} distinct values)",
+                round,
+                l.name,
+                if same { "bit-exact" } else { "MISMATCH" },
+                distinct
+            );
+            if !same {
+                failures += 1;
+            }
+        }
+    }
+    hprintln!("{} layer runs, {} mismatches", checked, failures);
+    if failures == 0 {
+        debug::exit(debug::EXIT_SUCCESS);
+    } else {
+        debug::exit(debug::EXIT_FAILURE);
+    }
+    loop {}
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("panic: {}", info);
+    debug::exit(debug::EXIT_FAILURE);
+    loop {}
+}
