@@ -128,12 +128,14 @@ fn main() -> ! {
     } else {
         debug::exit(debug::EXIT_FAILURE);
     }
-    loop {}
+    // Unreachable after the semihosting exit; trap if it ever returns.
+    cortex_m::asm::udf()
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     hprintln!("panic: {}", info);
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    // Unreachable after the semihosting exit; trap if it ever returns.
+    cortex_m::asm::udf()
 }
