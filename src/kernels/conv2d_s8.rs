@@ -65,7 +65,7 @@ pub fn conv2d_s8_plain(
 /// Optimised: when the taps of one output (`I · kh · kw`) fit
 /// [`super::conv3d_s8::COL_LEN`], the im2col engine of [`super::conv3d_s8::conv3d_s8`]
 /// (a 2D layer is a 3D one with a trivial third axis, same memory layout): two output
-/// positions × two output channels per dot product over i16 column buffers. Otherwise
+/// positions per dot product over packed i16 columns. Otherwise
 /// [`conv2d_s8_rows`].
 pub fn conv2d_s8(
     shape: &ConvShape,

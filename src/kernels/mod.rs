@@ -7,6 +7,10 @@
 //! multipliers, that no int32 accumulator and no requantisation left shift can overflow for
 //! any int8 input (see [`accumulator_bound`]); after validation the arithmetic is exact.
 //!
+//! With the `dsp` cargo feature the convolution inner loops use `SMLAD`/`SXTB16`
+//! ([`crate::dsp`]); the results are the same bits (checked on QEMU Cortex-M7 by
+//! `qemu-check/`).
+//!
 //! Tensor layouts are channel-major: 2D `[C][H][W]`, 3D `[C][D][H][W]`; weights `[O][I][k…]`
 //! for convolutions and `[I][O][k…]` for transposed convolutions.
 
