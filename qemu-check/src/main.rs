@@ -13,8 +13,23 @@ use epssn::config;
 use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
 use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
 use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
+use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
+use epssn::kernels::soft_argmax_s8::{
+    head_soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
+};
 use epssn::kernels::{ConvParams, ConvShape, Skip};
 use epssn::requant::Requant;
+use fixed::types::U16F16;
+
+/// exp(x) for x ≤ 0 by squaring a Taylor series (no libm needed for a test table).
+fn approx_exp(x: f64) -> f64 {
+    let y = x / 1024.0;
+    let mut e = 1.0 + y + y * y / 2.0 + y * y * y / 6.0;
+    for _ in 0..10 {
+        e *= e;
+    }
+    e
+}
 
 struct Rng(u64);
 impl Rng {
@@ -120,6 +135,107 @@ fn main() -> ! {
             if !same {
                 failures += 1;
             }
+        }
+    }
+    // Fused streaming head vs head transposed convolution + soft-argmax (plain kernels),
+    // and the cost volume with the real warp tables, optimised vs plain.
+    let exp: [u16; 256] =
+        core::array::from_fn(|d| (65535.0 * approx_exp(-(d as f64) * 0.05) + 0.5) as u16);
+    let sp = SoftArgmaxParams {
+        exp: &exp,
+        r_min16: U16F16::from_num(config::R_MIN_M),
+        step16: U16F16::from_num((config::R_MAX_M - config::R_MIN_M) / 63.0),
+    };
+    let head = &config::LAYER_HEAD;
+    let hs = ConvShape::from(head);
+    for round in 0..2 {
+        rng.fill(&mut w[..head.weight_len()]);
+        bias[0] = (rng.next() % 20_001) as i32 - 10_000;
+        rq[0] = Requant {
+            multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
+            shift: -8,
+        };
+        let p = ConvParams {
+            weights: &w[..head.weight_len()],
+            bias: &bias[..1],
+            requant: &rq[..1],
+            input_offset: 0,
+            relu: false,
+        };
+        if round == 0 {
+            rng.fill(&mut input[..head.input_len()]);
+        } else {
+            input[..head.input_len()].fill(127);
+        }
+        let mut d_fused = [U16F16::ZERO; config::DEPTH_LEN];
+        let mut d_plain = [U16F16::ZERO; config::DEPTH_LEN];
+        let r1 = head_soft_argmax_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused);
+        let r2 = conv_transpose3d_s8_plain(
+            &hs,
+            &input[..head.input_len()],
+            &p,
+            Skip::None,
+            &mut a[..head.output_len()],
+        );
+        let ss = SoftArgmaxShape {
+            rows: 32,
+            bins: 64,
+            columns: 64,
+        };
+        let r3 = soft_argmax_s8_plain(&ss, &a[..head.output_len()], &sp, &mut d_plain);
+        let same = r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain;
+        hprintln!(
+            "round {} fused head + soft-argmax: {}",
+            round,
+            if same { "bit-exact" } else { "MISMATCH" }
+        );
+        checked += 1;
+        if !same {
+            failures += 1;
+        }
+    }
+    for views in 1..=2usize {
+        let n = config::FEATURE_LEN;
+        rng.fill(&mut input[..3 * n]);
+        let (reference, rest) = input[..3 * n].split_at(n);
+        let srcs = [
+            SourceView {
+                features: &rest[..n],
+                warp: &config::WARP_TABLES[0],
+            },
+            SourceView {
+                features: &rest[n..],
+                warp: &config::WARP_TABLES[1],
+            },
+        ];
+        let crq = Requant {
+            multiplier: 1 << 30,
+            shift: -6,
+        };
+        let len = config::COST_VOLUME_LEN;
+        let r1 = cost_volume_s8(
+            &CostShape::EPSSN,
+            reference,
+            &srcs[..views],
+            crq,
+            &mut a[..len],
+        );
+        let r2 = cost_volume_s8_plain(
+            &CostShape::EPSSN,
+            reference,
+            &srcs[..views],
+            crq,
+            &mut b[..len],
+        );
+        let same = r1.is_ok() && r2.is_ok() && a[..len] == b[..len];
+        hprintln!(
+            "cost volume, {} views: {}",
+            views + 1,
+            if same { "bit-exact" } else { "MISMATCH" }
+        );
+        checked += 1;
+        if !same {
+            failures += 1;
         }
     }
     hprintln!("{} layer runs, {} mismatches", checked, failures);
