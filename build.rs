@@ -300,6 +300,20 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     for (name, doc, v) in fconsts {
         writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
     }
+    // Soft-argmax depth constants in unsigned Q16.16 metres (docs/QUANTISATION.md).
+    let q16 = |x: f64| (x * 65536.0).round() as u32;
+    writeln!(
+        s,
+        "/// `round(r_min · 2^16)`: depth of soft-argmax bin 0, Q16.16 metres.\npub const R_MIN_Q16: u32 = {};",
+        q16(spec.range_window.r_min_m)
+    )
+    .unwrap();
+    writeln!(
+        s,
+        "/// `round((r_max − r_min) / (bins − 1) · 2^16)`: step between soft-argmax bins.\npub const DEPTH_STEP_Q16: u32 = {};",
+        q16((spec.range_window.r_max_m - spec.range_window.r_min_m) / (dr as f64 - 1.0))
+    )
+    .unwrap();
     writeln!(
         s,
         "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};",

@@ -4,7 +4,7 @@
 //! or the file named by the `EPSSN_SPEC` environment variable at build time): the one place
 //! where the library's sizes are written.
 
-// Generated range grids can contain values such as 3.14 that are not meant as π.
+// The generated tables hold measured numbers, some of which happen to be close to π.
 #![allow(clippy::approx_constant)]
 
 pub use crate::geometry::WarpEntry;

@@ -198,7 +198,7 @@ impl RigidTransform {
 /// than two points. The result's integer part is at most `n − 2`, its fraction in `[0, 1]`.
 pub fn fractional_index(xs: &[f64], x: f64) -> Option<(usize, f64)> {
     let n = xs.len();
-    if n < 2 || !(x >= xs[0] && x <= xs[n - 1]) {
+    if n < 2 || x.is_nan() || x < xs[0] || x > xs[n - 1] {
         return None;
     }
     // Binary search for the segment [xs[i], xs[i+1]] holding x.

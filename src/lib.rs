@@ -33,11 +33,13 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod blob;
 pub mod config;
 pub mod crc32;
 pub mod dsp;
 pub mod geometry;
 pub mod grids;
 pub mod kernels;
+pub mod model;
 pub mod requant;
 pub mod spec;

@@ -3,4 +3,21 @@
 
 #![deny(missing_docs)]
 
+pub mod aris;
+pub mod beams;
+pub mod dataset;
+pub mod floatref;
+pub mod groundtruth;
+pub mod inspect;
 pub mod intref;
+pub mod metrics;
+pub mod npy;
+pub mod polar;
+pub mod preview;
+pub mod quantise;
+pub mod reference_model;
+pub mod render;
+pub mod scene;
+pub mod simulate;
+pub mod spec;
+pub mod synthetic;

@@ -1,0 +1,196 @@
+//! epssn co-processor firmware.
+//!
+//! At boot it checks, on the target, what the host already checked at build time:
+//! - the weight blob in flash passes the library's loader (CRC, spec hash, shapes, bounds);
+//! - the warp tables in flash equal a recomputation from the same geometry code;
+//! - a fixed pair of images gives exactly the depth map the library computed on x86
+//!   (the golden vector from `build.rs`).
+//!
+//! It reports instruction counts per layer. The result and exit code go out through
+//! semihosting.
+
+#![no_std]
+#![no_main]
+
+mod board;
+
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use embedded_hal::digital::OutputPin;
+use epssn::config;
+use epssn::geometry;
+use epssn::model::{Model, Workspace};
+use fixed::types::U16F16;
+use static_cell::ConstStaticCell;
+
+use board::{BusyLed, TickCounter};
+
+static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));
+static SELFTEST_REFERENCE: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/selftest_reference.bin"));
+static SELFTEST_SOURCE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_source.bin"));
+static SELFTEST_DEPTH: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_depth.bin"));
+
+/// Scratch of one inference, in .bss (const-initialised: never built on the stack).
+static WORKSPACE: ConstStaticCell<Workspace> = ConstStaticCell::new(Workspace::new());
+/// Features of the views of one depth map.
+static FEATURES: ConstStaticCell<[[i8; config::FEATURE_LEN]; config::MAX_VIEWS]> =
+    ConstStaticCell::new([[0; config::FEATURE_LEN]; config::MAX_VIEWS]);
+/// The depth map.
+static DEPTH: ConstStaticCell<[U16F16; config::DEPTH_LEN]> =
+    ConstStaticCell::new([U16F16::ZERO; config::DEPTH_LEN]);
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("firmware panic: {}", info);
+    debug::exit(debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// Recomputes the warp table of view `k` on the target and counts differing entries.
+fn warp_table_mismatches(k: usize) -> usize {
+    let mut table = [geometry::WarpEntry::default(); config::PLANES * config::FEATURE_COLUMNS];
+    let transform = geometry::RigidTransform::rolled_about_axis(
+        config::ROLL_STEP_DEG * k as f64,
+        config::LEVER_ARM_M,
+    );
+    if geometry::warp_table_pure_roll(
+        &transform,
+        &config::FEATURE_COLUMN_AZIMUTH_RAD,
+        &config::PLANE_ELEVATION_RAD,
+        config::HALF_ELEVATION_RAD,
+        config::WARP_FRACTION_BITS,
+        &mut table,
+    )
+    .is_err()
+    {
+        return table.len();
+    }
+    table
+        .iter()
+        .zip(config::WARP_TABLES[k - 1].iter())
+        .filter(|(a, b)| a != b)
+        .count()
+}
+
+fn instructions(ticks: u32) -> u32 {
+    ticks.saturating_mul(TickCounter::INSTRUCTIONS_PER_TICK)
+}
+
+/// Runs the golden pair and prints per-layer instruction counts; true when bit-exact.
+fn golden_self_test(model: &Model<'_>, clock: &TickCounter) -> bool {
+    let ws = WORKSPACE.take();
+    let feats = FEATURES.take();
+    let depth = DEPTH.take();
+    let mut led = BusyLed;
+    let _ = led.set_high();
+    let start = clock.now();
+    let mut last = start;
+    let mut ok = true;
+    for (v, image) in [SELFTEST_REFERENCE, SELFTEST_SOURCE].iter().enumerate() {
+        let r = model.features_probed(image, ws, &mut feats[v], |name, _| {
+            let now = clock.now();
+            hprintln!(
+                "layer {} (view {}): {} instructions",
+                name,
+                v,
+                instructions(now - last)
+            );
+            last = clock.now();
+        });
+        if let Err(e) = r {
+            hprintln!("features failed: {:?}", e);
+            ok = false;
+        }
+    }
+    let features_done = clock.now();
+    let (reference, sources) = feats.split_at(1);
+    let r =
+        model.depth_from_features_probed(&reference[0], &[&sources[0]], ws, depth, |name, _| {
+            let now = clock.now();
+            hprintln!("layer {}: {} instructions", name, instructions(now - last));
+            last = clock.now();
+        });
+    let end = clock.now();
+    let _ = led.set_low();
+    if let Err(e) = r {
+        hprintln!("depth failed: {:?}", e);
+        ok = false;
+    }
+    hprintln!(
+        "layer head+soft-argmax: {} instructions",
+        instructions(end - last)
+    );
+    let mismatches = depth
+        .iter()
+        .zip(SELFTEST_DEPTH.chunks_exact(4))
+        .filter(|(d, g)| d.to_bits() != u32::from_le_bytes([g[0], g[1], g[2], g[3]]))
+        .count();
+    hprintln!(
+        "self-test depth map: {} of {} values differ from the x86 library",
+        mismatches,
+        config::DEPTH_LEN
+    );
+    hprintln!(
+        "instructions: features per view {}, depth from features {}, full pair {}",
+        instructions(features_done - start) / 2,
+        instructions(end - features_done),
+        instructions(end - start)
+    );
+    ok && mismatches == 0
+}
+
+#[entry]
+fn main() -> ! {
+    hprintln!(
+        "epssn firmware: {} ({}x{} input, {} planes, {}x{} depth)",
+        config::SPEC_NAME,
+        config::INPUT_RANGE_BINS,
+        config::INPUT_COLUMNS,
+        config::PLANES,
+        config::DEPTH_ROWS,
+        config::DEPTH_COLUMNS
+    );
+    let clock = TickCounter::start();
+    let mut failures = 0;
+    for k in 1..config::MAX_VIEWS {
+        let bad = warp_table_mismatches(k);
+        let visible = config::WARP_TABLES[k - 1]
+            .iter()
+            .filter(|e| e.visible)
+            .count();
+        hprintln!(
+            "self-test warp table view {}: {} visible entries, {} mismatches",
+            k,
+            visible,
+            bad
+        );
+        if bad != 0 || visible == 0 {
+            failures += 1;
+        }
+    }
+    match Model::from_blob(WEIGHTS) {
+        Ok(model) => {
+            hprintln!("weights: {} bytes, blob verified", WEIGHTS.len());
+            if !golden_self_test(&model, &clock) {
+                failures += 1;
+            }
+        }
+        Err(e) => {
+            hprintln!("weights refused: {:?}", e);
+            failures += 1;
+        }
+    }
+    if failures == 0 {
+        hprintln!("self-test: PASS");
+        debug::exit(debug::EXIT_SUCCESS);
+    } else {
+        hprintln!("self-test: FAIL ({} checks)", failures);
+        debug::exit(debug::EXIT_FAILURE);
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

@@ -1,0 +1,485 @@
+//! The quantiser: float EPSSN weights and calibrated activation ranges → the int8 weight blob
+//! the library runs, following `docs/QUANTISATION.md` to the letter.
+//!
+//! Steps: fold batch norm into each convolution; quantise weights symmetrically per output
+//! channel to [−127, 127]; take each activation's scale from its calibrated maximum; derive
+//! int32 biases and TFLite-style (multiplier, shift) pairs; build the soft-argmax exp table;
+//! prove every accumulator bound; write the blob and a readable manifest.
+
+use std::collections::BTreeMap;
+
+use anyhow::{anyhow, bail, Context, Result};
+use epssn::blob::{write_blob, Dtype};
+use epssn::config::{self, LayerKind, LayerShape, LAYERS};
+use epssn::requant::Requant;
+use serde::Serialize;
+
+/// Batch-norm statistics and affine parameters of one layer.
+#[derive(Clone, Debug)]
+pub struct BatchNorm {
+    /// γ.
+    pub gamma: Vec<f32>,
+    /// β.
+    pub beta: Vec<f32>,
+    /// Running mean μ.
+    pub mean: Vec<f32>,
+    /// Running variance σ².
+    pub var: Vec<f32>,
+    /// ε.
+    pub eps: f64,
+}
+
+/// One float layer in canonical layout (conv `[O][I][k…]`, conv-transpose `[I][O][k…]`).
+#[derive(Clone, Debug)]
+pub struct FloatLayer {
+    /// Weights.
+    pub weight: Vec<f32>,
+    /// Bias (zeros when the convolution has none).
+    pub bias: Vec<f32>,
+    /// Batch norm applied after the convolution, if any.
+    pub bn: Option<BatchNorm>,
+}
+
+/// Float weights of the whole model, by layer name.
+pub type FloatWeights = BTreeMap<String, FloatLayer>;
+
+/// Calibrated maximum |x| of each activation tensor: `f0`…`f3`, `cost`, `d1`, `d2`, `m0`,
+/// `u1`, `u0` (after their skip additions) and `head` (the logits).
+pub type ActivationRanges = BTreeMap<String, f64>;
+
+/// How the weights of one layer are laid out.
+#[derive(Clone, Copy, Debug)]
+pub struct WeightLayout {
+    /// Input channels.
+    pub in_channels: usize,
+    /// Output channels.
+    pub out_channels: usize,
+    /// Taps of one kernel.
+    pub kernel_volume: usize,
+    /// `[I][O][k…]` (conv-transpose) rather than `[O][I][k…]`.
+    pub transposed: bool,
+}
+
+impl WeightLayout {
+    /// The layout of a compiled layer.
+    pub fn of(l: &LayerShape) -> Self {
+        Self {
+            in_channels: l.in_channels,
+            out_channels: l.out_channels,
+            kernel_volume: l.kernel.iter().map(|&k| k as usize).product(),
+            transposed: matches!(l.kind, LayerKind::ConvTranspose3d),
+        }
+    }
+
+    /// Indices of every weight of output channel `o`.
+    pub fn channel_indices(&self, o: usize) -> impl Iterator<Item = usize> + '_ {
+        let k = self.kernel_volume;
+        (0..self.in_channels).flat_map(move |i| {
+            let start = if self.transposed {
+                (i * self.out_channels + o) * k
+            } else {
+                (o * self.in_channels + i) * k
+            };
+            start..start + k
+        })
+    }
+
+    /// Total weights.
+    pub fn len(&self) -> usize {
+        self.in_channels * self.out_channels * self.kernel_volume
+    }
+
+    /// True for a layer without weights.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Folds batch norm into the convolution: `w' = w·γ/√(σ²+ε)`, `b' = (b − μ)·γ/√(σ²+ε) + β`,
+/// per output channel.
+pub fn fold_batch_norm(layer: &FloatLayer, layout: &WeightLayout) -> (Vec<f64>, Vec<f64>) {
+    let mut w: Vec<f64> = layer.weight.iter().map(|&x| x as f64).collect();
+    let mut b: Vec<f64> = layer.bias.iter().map(|&x| x as f64).collect();
+    if let Some(bn) = &layer.bn {
+        for (o, bias) in b.iter_mut().enumerate().take(layout.out_channels) {
+            let g = bn.gamma[o] as f64 / (bn.var[o] as f64 + bn.eps).sqrt();
+            *bias = (*bias - bn.mean[o] as f64) * g + bn.beta[o] as f64;
+            for i in layout.channel_indices(o) {
+                w[i] *= g;
+            }
+        }
+    }
+    (w, b)
+}
+
+/// Rounds half away from zero (the contract's `round_half_away`; `f64::round` does this).
+fn round_half_away(x: f64) -> f64 {
+    x.round()
+}
+
+/// Symmetric per-channel int8 quantisation: `s_w[o] = max|w[o]|/127` (1 for an all-zero
+/// channel), `q = round_half_away(w / s_w)`.
+pub fn quantise_weights(w: &[f64], layout: &WeightLayout) -> (Vec<i8>, Vec<f64>) {
+    let mut scales = vec![1.0; layout.out_channels];
+    let mut q = vec![0i8; w.len()];
+    for (o, scale) in scales.iter_mut().enumerate() {
+        let max = layout
+            .channel_indices(o)
+            .map(|i| w[i].abs())
+            .fold(0.0, f64::max);
+        if max > 0.0 {
+            *scale = max / 127.0;
+        }
+        for i in layout.channel_indices(o) {
+            q[i] = round_half_away(w[i] / *scale).clamp(-127.0, 127.0) as i8;
+        }
+    }
+    (q, scales)
+}
+
+/// The integer form of a real multiplier, refusing what the library would refuse.
+fn requant(m: f64, what: &str) -> Result<Requant> {
+    Requant::from_real(m).ok_or_else(|| anyhow!("{what}: multiplier {m} cannot be represented"))
+}
+
+/// `EXP[d] = round_half_away(65535 · exp(−d · s_l))`.
+pub fn exp_table(logit_scale: f64) -> [u16; 256] {
+    let mut t = [0u16; 256];
+    for (d, e) in t.iter_mut().enumerate() {
+        *e = round_half_away(65535.0 * (-(d as f64) * logit_scale).exp()) as u16;
+    }
+    t
+}
+
+/// One quantised layer, for the manifest.
+#[derive(Clone, Debug, Serialize)]
+pub struct LayerReport {
+    /// Layer name.
+    pub name: String,
+    /// Scale of the layer's input.
+    pub input_scale: f64,
+    /// Scale of its output.
+    pub output_scale: f64,
+    /// Smallest and largest weight scale over the output channels.
+    pub weight_scale_range: [f64; 2],
+    /// Worst-case |accumulator| over all int8 inputs.
+    pub accumulator_bound: i64,
+    /// Headroom: log2(2^31 / bound).
+    pub accumulator_headroom_bits: f64,
+    /// Skip multiplier (real), if the layer has a skip.
+    pub skip_multiplier: Option<f64>,
+}
+
+/// The quantised model: blob bytes plus what the manifest reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct Quantised {
+    /// Activation scales by tensor name (`input` is 1/255).
+    pub activation_scales: BTreeMap<String, f64>,
+    /// Per-layer report.
+    pub layers: Vec<LayerReport>,
+    /// Real cost-volume multipliers for 2 and 3 views.
+    pub cost_multipliers: [f64; 2],
+    /// Spec hash the blob carries.
+    pub spec_hash: u32,
+    /// The blob.
+    #[serde(skip)]
+    pub blob: Vec<u8>,
+}
+
+/// Quantises `weights` with activation scales from `ranges` (max |x| per tensor).
+pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Quantised> {
+    let mut scales = BTreeMap::new();
+    scales.insert("input".to_string(), 1.0 / 255.0);
+    for (name, &max) in ranges {
+        if !(max.is_finite() && max > 0.0) {
+            bail!("activation range of {name} is {max}: calibration failed");
+        }
+        scales.insert(name.clone(), max / 127.0);
+    }
+    let scale = |name: &str| -> Result<f64> {
+        scales
+            .get(name)
+            .copied()
+            .ok_or_else(|| anyhow!("no calibrated range for tensor {name}"))
+    };
+    let mut tensors: Vec<(String, Dtype, Vec<u8>)> = Vec::new();
+    let mut reports = Vec::new();
+    let mut input_name = "input".to_string();
+    let feature_layers = epssn::model::FEATURE_LAYERS;
+    for (index, l) in LAYERS.iter().enumerate() {
+        if index == feature_layers {
+            input_name = "cost".to_string();
+        }
+        let layout = WeightLayout::of(l);
+        let fl = weights
+            .get(l.name)
+            .ok_or_else(|| anyhow!("float weights have no layer {}", l.name))?;
+        if fl.weight.len() != layout.len() || fl.bias.len() != l.out_channels {
+            bail!(
+                "layer {}: float weights have {} weights and {} biases, the spec wants {} and {}",
+                l.name,
+                fl.weight.len(),
+                fl.bias.len(),
+                layout.len(),
+                l.out_channels
+            );
+        }
+        let (w, b) = fold_batch_norm(fl, &layout);
+        let (qw, ws) = quantise_weights(&w, &layout);
+        let s_in = scale(&input_name)?;
+        let s_out = scale(l.name)?;
+        let mut qb = Vec::with_capacity(l.out_channels);
+        let mut mult = Vec::with_capacity(l.out_channels);
+        let mut shift = Vec::with_capacity(l.out_channels);
+        let mut rq = Vec::with_capacity(l.out_channels);
+        for o in 0..l.out_channels {
+            let bias = round_half_away(b[o] / (s_in * ws[o]));
+            if bias.abs() >= 2f64.powi(31) {
+                bail!(
+                    "layer {} channel {o}: bias {bias} does not fit int32",
+                    l.name
+                );
+            }
+            qb.push(bias as i32);
+            let r = requant(s_in * ws[o] / s_out, l.name)?;
+            mult.push(r.multiplier);
+            shift.push(r.shift);
+            rq.push(r);
+        }
+        let params = epssn::kernels::ConvParams {
+            weights: &qw,
+            bias: &qb,
+            requant: &rq,
+            input_offset: if index == 0 {
+                epssn::model::INPUT_OFFSET
+            } else {
+                0
+            },
+            relu: l.relu,
+        };
+        let bound = epssn::kernels::check_layer_bounds(
+            &epssn::kernels::ConvShape::from(l),
+            &params,
+            layout.transposed,
+        )
+        .map_err(|e| anyhow!("layer {}: {e:?}", l.name))?;
+        if !rq.iter().all(|r| r.fits(bound)) {
+            bail!(
+                "layer {}: accumulator bound {bound} overflows after the left shift",
+                l.name
+            );
+        }
+        let mut skip_m = None;
+        if let Some(skip) = l.skip {
+            let m = scale(skip)? / s_out;
+            let r = requant(m, l.name)?;
+            tensors.push((
+                format!("{}.k", l.name),
+                Dtype::I32,
+                i32_bytes(&[r.multiplier, r.shift]),
+            ));
+            skip_m = Some(m);
+        }
+        tensors.push((
+            format!("{}.w", l.name),
+            Dtype::I8,
+            qw.iter().map(|&q| q as u8).collect(),
+        ));
+        tensors.push((format!("{}.b", l.name), Dtype::I32, i32_bytes(&qb)));
+        tensors.push((format!("{}.m", l.name), Dtype::I32, i32_bytes(&mult)));
+        tensors.push((format!("{}.s", l.name), Dtype::I32, i32_bytes(&shift)));
+        reports.push(LayerReport {
+            name: l.name.to_string(),
+            input_scale: s_in,
+            output_scale: s_out,
+            weight_scale_range: [
+                ws.iter().copied().fold(f64::INFINITY, f64::min),
+                ws.iter().copied().fold(0.0, f64::max),
+            ],
+            accumulator_bound: bound,
+            accumulator_headroom_bits: (2f64.powi(31) / bound.max(1) as f64).log2(),
+            skip_multiplier: skip_m,
+        });
+        input_name = l.name.to_string();
+    }
+    let last_feature = LAYERS[feature_layers - 1].name;
+    let s_f = scale(last_feature)?;
+    let s_cost = scale("cost")?;
+    let m2 = s_f * s_f / (4.0 * s_cost);
+    let m3 = s_f * s_f / (9.0 * s_cost);
+    let (r2, r3) = (
+        requant(m2, "cost (2 views)")?,
+        requant(m3, "cost (3 views)")?,
+    );
+    tensors.push((
+        "cost.rq".into(),
+        Dtype::I32,
+        i32_bytes(&[r2.multiplier, r2.shift, r3.multiplier, r3.shift]),
+    ));
+    let head = LAYERS[LAYERS.len() - 1].name;
+    let exp = exp_table(scale(head)?);
+    tensors.push((
+        "exp".into(),
+        Dtype::U16,
+        exp.iter().flat_map(|e| e.to_le_bytes()).collect(),
+    ));
+    let total: usize = tensors
+        .iter()
+        .map(|t| t.2.len() + 4 + epssn::blob::ENTRY_LEN)
+        .sum();
+    let mut out = vec![0u8; total + epssn::blob::HEADER_LEN + 8];
+    let refs: Vec<(&str, Dtype, &[u8])> = tensors
+        .iter()
+        .map(|(n, d, b)| (n.as_str(), *d, b.as_slice()))
+        .collect();
+    let n = write_blob(config::SPEC_HASH, &refs, &mut out)
+        .map_err(|e| anyhow!("writing blob: {e:?}"))?;
+    out.truncate(n);
+    // The library must accept what we wrote: the same checks the firmware runs at boot.
+    epssn::model::Model::from_blob(&out)
+        .map_err(|e| anyhow!("the library refuses the blob: {e:?}"))?;
+    Ok(Quantised {
+        activation_scales: scales,
+        layers: reports,
+        cost_multipliers: [m2, m3],
+        spec_hash: config::SPEC_HASH,
+        blob: out,
+    })
+}
+
+fn i32_bytes(v: &[i32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Writes `<dir>/epssn-s.q8.bin` and `<dir>/quantisation.json`.
+pub fn write(dir: &std::path::Path, q: &Quantised) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::write(dir.join(BLOB_FILE), &q.blob)?;
+    let manifest = serde_json::json!({
+        "format": "epssn int8 weight blob",
+        "format_version": epssn::blob::FORMAT_VERSION,
+        "spec": config::SPEC_NAME,
+        "spec_hash": format!("{:#010x}", q.spec_hash),
+        "blob_bytes": q.blob.len(),
+        "blob_crc32": format!("{:#010x}", epssn::crc32::crc32(&q.blob[..q.blob.len() - 4])),
+        "rounding": "TFLite MultiplyByQuantizedMultiplier (docs/QUANTISATION.md)",
+        "quantisation": q,
+    });
+    std::fs::write(
+        dir.join("quantisation.json"),
+        serde_json::to_string_pretty(&manifest)?,
+    )?;
+    Ok(())
+}
+
+/// File name of the blob inside a weights folder.
+pub const BLOB_FILE: &str = "epssn-s.q8.bin";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn batch_norm_folds_per_output_channel_in_both_layouts() {
+        // 2 in, 2 out, 1 tap. Conv [O][I]: channel 0 = w[0], w[1]; transposed [I][O]: w[0], w[2].
+        let layer = FloatLayer {
+            weight: vec![1.0, 2.0, 3.0, 4.0],
+            bias: vec![0.5, -0.5],
+            bn: Some(BatchNorm {
+                gamma: vec![2.0, 1.0],
+                beta: vec![0.1, 0.2],
+                mean: vec![0.5, 1.5],
+                var: vec![3.0, 0.0],
+                eps: 1.0,
+            }),
+        };
+        let conv = WeightLayout {
+            in_channels: 2,
+            out_channels: 2,
+            kernel_volume: 1,
+            transposed: false,
+        };
+        let (w, b) = fold_batch_norm(&layer, &conv);
+        // g = γ/√(σ²+ε) is 1 for both channels here, so only the biases move.
+        assert_eq!(w, vec![1.0, 2.0, 3.0, 4.0]);
+        assert!((b[0] - 0.1f32 as f64).abs() < 1e-12);
+        assert!((b[1] - (-2.0 + 0.2f32 as f64)).abs() < 1e-12);
+        let mut l2 = layer.clone();
+        l2.bn.as_mut().unwrap().gamma = vec![4.0, 3.0];
+        let (w, _) = fold_batch_norm(&l2, &conv);
+        assert_eq!(w, vec![2.0, 4.0, 9.0, 12.0]);
+        let tr = WeightLayout {
+            transposed: true,
+            ..conv
+        };
+        let (w, _) = fold_batch_norm(&l2, &tr);
+        assert_eq!(w, vec![2.0, 6.0, 6.0, 12.0]);
+    }
+
+    #[test]
+    fn weights_quantise_symmetrically_per_channel() {
+        let layout = WeightLayout {
+            in_channels: 1,
+            out_channels: 3,
+            kernel_volume: 2,
+            transposed: false,
+        };
+        let (q, s) = quantise_weights(&[0.5, -1.27, 0.0, 0.0, 0.01, 0.0025], &layout);
+        assert_eq!(&q[..2], &[50, -127]);
+        assert!((s[0] - 0.01).abs() < 1e-15);
+        assert_eq!(&q[2..4], &[0, 0]);
+        assert_eq!(s[1], 1.0);
+        assert_eq!(&q[4..], &[127, 32]); // 31.75 rounds to 32
+    }
+
+    #[test]
+    fn exp_table_is_monotone_and_anchored() {
+        let t = exp_table(0.05);
+        assert_eq!(t[0], 65535);
+        assert!(t.windows(2).all(|w| w[1] <= w[0]));
+        assert_eq!(t[20], (65535.0 * (-1.0f64).exp()).round() as u16);
+    }
+}
+
+/// `host-sim quantise`: float weights + calibration data → blob and manifest.
+#[derive(clap::Args, Debug)]
+pub struct QuantiseArgs {
+    /// Quantise an untrained, He-initialised model with this seed (for bit-exactness runs and
+    /// benchmarks before trained weights exist).
+    #[arg(long)]
+    pub random_init: Option<u64>,
+    /// Number of calibration inputs.
+    #[arg(long, default_value_t = 8)]
+    pub calibration_samples: usize,
+    /// Output folder for the blob and `quantisation.json`.
+    #[arg(long)]
+    pub out: std::path::PathBuf,
+}
+
+/// Runs `host-sim quantise`.
+pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
+    let Some(seed) = args.random_init else {
+        bail!("give --random-init SEED (quantising trained weights needs the float model)");
+    };
+    let weights = crate::synthetic::random_float_weights(seed);
+    let mut rng = crate::synthetic::Rng(seed ^ 0x5EED);
+    let traces = (0..args.calibration_samples.max(1))
+        .map(|s| {
+            let a = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37);
+            let b = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37 + 0.1);
+            crate::floatref::run(&weights, &[&a, &b])
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
+    write(&args.out, &q)?;
+    writeln!(
+        out,
+        "wrote {} ({} bytes, spec {} {:#010x}) and quantisation.json to {}",
+        BLOB_FILE,
+        q.blob.len(),
+        config::SPEC_NAME,
+        q.spec_hash,
+        args.out.display()
+    )?;
+    Ok(())
+}

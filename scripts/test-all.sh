@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Runs every check of the project on a fresh machine: installs what it needs (the thumbv7em
+# target, rustfmt/clippy, QEMU), then fmt, clippy, the no_std build, all host tests and the
+# firmware in QEMU. Exits non-zero on the first failure.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n==> %s\n' "$*"; }
+
+step "toolchain and tools"
+rustup target list --installed | grep -qx thumbv7em-none-eabihf || rustup target add thumbv7em-none-eabihf
+rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
+rustup component list --installed | grep -q '^clippy' || rustup component add clippy
+if ! command -v qemu-system-arm >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq qemu-system-arm >/dev/null
+fi
+qemu-system-arm --version | head -1
+
+step "format"
+cargo fmt --all -- --check
+(cd firmware && cargo fmt -- --check)
+
+step "clippy (host workspace, all targets, -D warnings)"
+cargo clippy --workspace --all-targets -- -D warnings
+
+step "no_std library build for thumbv7em-none-eabihf (with and without defmt)"
+cargo build -p epssn --lib --target thumbv7em-none-eabihf
+cargo build -p epssn --lib --target thumbv7em-none-eabihf --features defmt
+
+step "firmware: clippy and release build"
+(cd firmware && cargo clippy --release -- -D warnings && cargo build --release)
+
+step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
+(cd firmware && timeout 300 cargo run --release)
+
+step "host tests (workspace)"
+cargo test --workspace

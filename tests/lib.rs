@@ -1,0 +1,18 @@
+//! Shared helpers of the integration tests.
+
+#![deny(missing_docs)]
+
+/// Beam centres (degrees) of the model's sonar, read from the bundled CSV independently of the
+/// generated tables.
+pub fn model_beam_centres_deg() -> Vec<f64> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/aris-beam-widths/");
+    let text = std::fs::read_to_string(format!("{path}{}.csv", epssn::config::BEAM_TABLE))
+        .expect("beam table");
+    text.lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split(',').nth(1).unwrap().trim().parse().unwrap())
+        .collect()
+}
+
+pub use host_sim::synthetic::{random_float_weights, synthetic_image, Rng};
