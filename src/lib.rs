@@ -25,7 +25,9 @@
 //! ```
 
 #![no_std]
-#![forbid(unsafe_code)]
+// The only unsafe code is the optional `dsp` module's inline assembly.
+#![cfg_attr(not(feature = "dsp"), forbid(unsafe_code))]
+#![cfg_attr(feature = "dsp", deny(unsafe_code))]
 #![deny(missing_docs)]
 
 #[cfg(test)]
@@ -34,6 +36,7 @@ extern crate std;
 pub mod blob;
 pub mod config;
 pub mod crc32;
+pub mod dsp;
 pub mod geometry;
 pub mod grids;
 pub mod kernels;

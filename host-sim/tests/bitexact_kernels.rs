@@ -5,9 +5,11 @@
 
 use epssn::config::{self, LayerKind, LayerShape, LAYERS};
 use epssn::geometry::WarpEntry;
-use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
-use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
-use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
+use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain, conv2d_s8_rows};
+use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain, conv3d_s8_rows};
+use epssn::kernels::conv_transpose3d_s8::{
+    conv_transpose3d_s8, conv_transpose3d_s8_plain, conv_transpose3d_s8_taps,
+};
 use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
 use epssn::kernels::soft_argmax_s8::{
     head_soft_argmax_s8, soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
@@ -105,19 +107,23 @@ fn check_conv(
     let want = intref::conv(sh, input, &l.w, &l.b, &l.m, input_offset, relu);
     let cs = conv_shape(sh);
     let p = params(l, input_offset, relu);
-    let (mut opt, mut plain) = (vec![0i8; want.len()], vec![0i8; want.len()]);
+    let n = want.len();
+    let (mut opt, mut plain, mut rows) = (vec![0i8; n], vec![0i8; n], vec![0i8; n]);
     match kind {
         LayerKind::Conv2d => {
             conv2d_s8(&cs, input, &p, &mut opt).unwrap();
             conv2d_s8_plain(&cs, input, &p, &mut plain).unwrap();
+            conv2d_s8_rows(&cs, input, &p, &mut rows).unwrap();
         }
         _ => {
             conv3d_s8(&cs, input, &p, &mut opt).unwrap();
             conv3d_s8_plain(&cs, input, &p, &mut plain).unwrap();
+            conv3d_s8_rows(&cs, input, &p, &mut rows).unwrap();
         }
     }
     assert_eq!(opt, want, "{what}: optimised vs reference");
     assert_eq!(plain, want, "{what}: plain vs reference");
+    assert_eq!(rows, want, "{what}: row-blocked vs reference");
     want
 }
 
@@ -141,8 +147,11 @@ fn check_convt(
             let (mut a, mut b) = (vec![0i8; n], vec![0i8; n]);
             conv_transpose3d_s8(&cs, input, &p, Skip::None, &mut a).unwrap();
             conv_transpose3d_s8_plain(&cs, input, &p, Skip::None, &mut b).unwrap();
+            let mut c = vec![0i8; n];
+            conv_transpose3d_s8_taps(&cs, input, &p, Skip::None, &mut c).unwrap();
             outs.push(("optimised", a));
             outs.push(("plain", b));
+            outs.push(("taps", c));
         }
         Some((s, m)) => {
             let sep = Skip::Separate {
@@ -158,6 +167,9 @@ fn check_convt(
             let (mut c, mut d) = (s.to_vec(), s.to_vec());
             conv_transpose3d_s8(&cs, input, &p, ip, &mut c).unwrap();
             conv_transpose3d_s8_plain(&cs, input, &p, ip, &mut d).unwrap();
+            let mut e = s.to_vec();
+            conv_transpose3d_s8_taps(&cs, input, &p, ip, &mut e).unwrap();
+            outs.push(("taps, in place", e));
             outs.push(("optimised, separate skip", a));
             outs.push(("plain, separate skip", b));
             outs.push(("optimised, in place", c));

@@ -62,9 +62,11 @@ pub fn conv2d_s8_plain(
     Ok(())
 }
 
-/// Optimised: two output channels per pass share every input load; the valid tap range of
-/// each output position is computed once per row/column (no per-tap bounds test, the
-/// interior and the border run the same branch-free loops over contiguous kernel rows).
+/// Optimised: when the taps of one output (`I · kh · kw`) fit
+/// [`super::conv3d_s8::COL_LEN`], the im2col engine of [`super::conv3d_s8::conv3d_s8`]
+/// (a 2D layer is a 3D one with a trivial third axis, same memory layout): two output
+/// positions per dot product over packed i16 columns. Otherwise
+/// [`conv2d_s8_rows`].
 pub fn conv2d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -73,6 +75,32 @@ pub fn conv2d_s8(
 ) -> Result<(), KernelError> {
     check_2d(shape)?;
     check_conv(shape, input.len(), params, output.len())?;
+    if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {
+        // Axes [H, W, 1] used as [D, H, W]: rows of length 1 in the gather, same sums.
+        super::conv3d_s8::im2col_engine(shape, input, params, output);
+    } else {
+        rows(shape, input, params, output);
+    }
+    Ok(())
+}
+
+/// Row-blocked variant: two output channels per pass share every input load; the valid tap
+/// range of each output position is computed once per row/column (no per-tap bounds test,
+/// the interior and the border run the same branch-free loops over contiguous kernel rows).
+/// No stack buffer.
+pub fn conv2d_s8_rows(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    output: &mut [i8],
+) -> Result<(), KernelError> {
+    check_2d(shape)?;
+    check_conv(shape, input.len(), params, output.len())?;
+    rows(shape, input, params, output);
+    Ok(())
+}
+
+fn rows(shape: &ConvShape, input: &[i8], params: &ConvParams<'_>, output: &mut [i8]) {
     let oc = shape.out_channels;
     let mut o = 0;
     while o + 2 <= oc {
@@ -82,7 +110,6 @@ pub fn conv2d_s8(
     if o < oc {
         block::<1>(shape, input, params, output, o);
     }
-    Ok(())
 }
 
 /// Output channels `o0 .. o0 + N` (validated shape: every slice below is in bounds).
@@ -182,6 +209,8 @@ mod tests {
             conv2d_s8_plain(&shape, &input, &p, &mut a).unwrap();
             conv2d_s8(&shape, &input, &p, &mut o).unwrap();
             assert_eq!(a, o, "case {case}: {shape:?}");
+            conv2d_s8_rows(&shape, &input, &p, &mut o).unwrap();
+            assert_eq!(a, o, "rows, case {case}: {shape:?}");
         }
     }
 
@@ -202,6 +231,8 @@ mod tests {
             let (mut a, mut o) = (vec![0i8; layer.output_len()], vec![1i8; layer.output_len()]);
             conv2d_s8_plain(&shape, &input, &p, &mut a).unwrap();
             conv2d_s8(&shape, &input, &p, &mut o).unwrap();
+            assert_eq!(a, o);
+            conv2d_s8_rows(&shape, &input, &p, &mut o).unwrap();
             assert_eq!(a, o);
             // Not a constant output: the comparison means something.
             assert!(a.iter().any(|&v| v != a[0]));

@@ -179,6 +179,10 @@ pub fn cost_volume_s8(
         width,
     } = *shape;
     let plane_len = height * width;
+    if output.is_empty() {
+        // Nothing to compute (and a zero chunk size below would be meaningless).
+        return Ok(());
+    }
     for (c, out_c) in output.chunks_exact_mut(planes * plane_len).enumerate() {
         let ref_c = &reference[c * plane_len..(c + 1) * plane_len];
         for (j, out_j) in out_c.chunks_exact_mut(plane_len).enumerate() {

@@ -7,6 +7,10 @@
 //! multipliers, that no int32 accumulator and no requantisation left shift can overflow for
 //! any int8 input (see [`accumulator_bound`]); after validation the arithmetic is exact.
 //!
+//! With the `dsp` cargo feature the convolution inner loops use `SMLAD`/`SXTB16`
+//! ([`crate::dsp`]); the results are the same bits (checked on QEMU Cortex-M7 by
+//! `qemu-check/`).
+//!
 //! Tensor layouts are channel-major: 2D `[C][H][W]`, 3D `[C][D][H][W]`; weights `[O][I][k…]`
 //! for convolutions and `[I][O][k…]` for transposed convolutions.
 
@@ -128,7 +132,15 @@ pub enum KernelError {
     DepthOverflow,
     /// The fused head needs kernel == stride, no padding and one output channel.
     NotStreamableHead,
+    /// `input_offset` outside `−MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET`.
+    InputOffset {
+        /// The offset given.
+        offset: i32,
+    },
 }
+
+/// Largest `|input_offset|` the kernels accept (the contract uses 0 and 128).
+pub const MAX_INPUT_OFFSET: i32 = 255;
 
 /// Shape of a convolution or transposed convolution, axes `[D, H, W]`; a 2D layer `[H][W]`
 /// uses axes 0 and 1 and has size, kernel and stride 1 on axis 2.
@@ -236,6 +248,11 @@ pub fn check_layer_bounds(
     params: &ConvParams<'_>,
     transposed: bool,
 ) -> Result<i64, KernelError> {
+    if !(-MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET).contains(&params.input_offset) {
+        return Err(KernelError::InputOffset {
+            offset: params.input_offset,
+        });
+    }
     let taps = mul3(shape.kernel)?;
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     expect(Operand::Bias, oc, params.bias.len())?;
@@ -527,5 +544,131 @@ mod tests {
         }];
         let p = ConvParams { requant: &rq, ..p };
         assert_eq!(check_layer_bounds(&shape, &p, false), Ok(128 * 127));
+    }
+}
+
+/// Degenerate and hostile arguments give errors or empty results, never a panic.
+#[cfg(test)]
+mod no_panic {
+    use super::conv2d_s8::*;
+    use super::conv3d_s8::*;
+    use super::conv_transpose3d_s8::*;
+    use super::cost_volume_s8::*;
+    use super::soft_argmax_s8::*;
+    use super::testutil::Rng;
+    use super::*;
+    use fixed::types::U16F16;
+    use std::vec;
+
+    #[test]
+    fn random_hostile_arguments_never_panic() {
+        let mut rng = Rng(0xdead_beef);
+        let buf_i8 = vec![1i8; 4096];
+        let bias = vec![i32::MAX; 64];
+        let rq_hostile = [
+            Requant {
+                multiplier: i32::MIN,
+                shift: 31,
+            },
+            Requant {
+                multiplier: i32::MAX,
+                shift: -40,
+            },
+            Requant::default(),
+        ];
+        let exp = [65535u16; 256];
+        for _ in 0..5000 {
+            let dim = |r: &mut Rng| [r.below(4), r.below(4), r.below(4)];
+            let shape = ConvShape {
+                in_channels: rng.below(3),
+                out_channels: rng.below(3),
+                kernel: dim(&mut rng),
+                stride: dim(&mut rng),
+                padding: dim(&mut rng),
+                output_padding: dim(&mut rng),
+                in_size: dim(&mut rng),
+                out_size: dim(&mut rng),
+            };
+            let rq = [rq_hostile[rng.below(3)]; 64];
+            let params = ConvParams {
+                weights: &buf_i8[..rng.below(200)],
+                bias: &bias[..rng.below(4)],
+                requant: &rq[..rng.below(4)],
+                input_offset: [0, 128, i32::MAX, i32::MIN][rng.below(4)],
+                relu: true,
+            };
+            let input = &buf_i8[..rng.below(300)];
+            let mut out = vec![0i8; rng.below(300)];
+            let _ = conv2d_s8(&shape, input, &params, &mut out);
+            let _ = conv2d_s8_plain(&shape, input, &params, &mut out);
+            let _ = conv3d_s8(&shape, input, &params, &mut out);
+            let _ = conv3d_s8_plain(&shape, input, &params, &mut out);
+            let skip = Skip::InPlace { requant: rq[0] };
+            let _ = conv_transpose3d_s8(&shape, input, &params, skip, &mut out);
+            let _ = conv_transpose3d_s8_plain(&shape, input, &params, Skip::None, &mut out);
+            let sp = SoftArgmaxParams {
+                exp: &exp,
+                r_min16: U16F16::from_bits(rng.next() as u32),
+                step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+            };
+            let mut depth = vec![U16F16::ZERO; rng.below(20)];
+            let _ = head_soft_argmax_s8(&shape, input, &params, &sp, &mut depth);
+            let ss = SoftArgmaxShape {
+                rows: rng.below(3),
+                bins: rng.below(4),
+                columns: rng.below(3),
+            };
+            let _ = soft_argmax_s8(&ss, input, &sp, &mut depth);
+            let _ = soft_argmax_s8_plain(&ss, input, &sp, &mut depth);
+            let cs = CostShape {
+                channels: rng.below(3),
+                planes: rng.below(3),
+                height: rng.below(3),
+                width: rng.below(3),
+            };
+            let table = [crate::geometry::WarpEntry {
+                column: rng.below(4) as u8,
+                fraction: rng.below(300) as u16,
+                visible: true,
+            }; 16];
+            let views = [SourceView {
+                features: input,
+                warp: &table[..rng.below(16)],
+            }; 3];
+            let nv = rng.below(4);
+            let _ = cost_volume_s8(&cs, input, &views[..nv], rq[0], &mut out);
+            let _ = cost_volume_s8_plain(&cs, input, &views[..nv], rq[0], &mut out);
+        }
+    }
+
+    #[test]
+    fn zero_sized_shapes_are_fine() {
+        let cs = CostShape {
+            channels: 2,
+            planes: 0,
+            height: 3,
+            width: 4,
+        };
+        let f = [0i8; 24];
+        let views = [SourceView {
+            features: &f,
+            warp: &[],
+        }];
+        assert_eq!(
+            cost_volume_s8(&cs, &f, &views, Requant::default(), &mut []),
+            Ok(())
+        );
+        let ss = SoftArgmaxShape {
+            rows: 2,
+            bins: 3,
+            columns: 0,
+        };
+        let exp = [1u16; 256];
+        let sp = SoftArgmaxParams {
+            exp: &exp,
+            r_min16: U16F16::ZERO,
+            step16: U16F16::ZERO,
+        };
+        assert_eq!(soft_argmax_s8(&ss, &[], &sp, &mut []), Ok(()));
     }
 }

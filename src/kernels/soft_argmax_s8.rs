@@ -144,6 +144,9 @@ pub fn soft_argmax_s8(
         bins,
         columns,
     } = *shape;
+    if columns == 0 {
+        return Ok(());
+    }
     for e in 0..rows {
         let plane = &logits[e * bins * columns..(e + 1) * bins * columns];
         let mut a0 = 0;
@@ -201,6 +204,91 @@ pub fn head_soft_argmax_s8(
     let [rows, bins, columns] = shape.out_size;
     check_params(soft, bins)?;
     super::expect(Operand::Depth, rows * columns, depth.len())?;
+    if shape.in_channels * shape.in_size[1] <= HEAD_COL_LEN
+        && shape.in_channels * shape.kernel[1] <= HEAD_RAY_LEN
+    {
+        head_by_columns(shape, input, params, soft, depth);
+    } else {
+        head_by_rays(shape, input, params, soft, depth);
+    }
+    Ok(())
+}
+
+/// Most values of one input column (`I × H`) the fused head gathers on the stack.
+pub const HEAD_COL_LEN: usize = 1024;
+/// Most weights of one ray (`I × kh`) the fused head gathers on the stack.
+pub const HEAD_RAY_LEN: usize = 256;
+
+/// Fused head, column by column: the `I × H` inputs of one input (plane, column) are
+/// gathered once (i16, offset added, `[y][c]`) and shared by the `kd · kw` rays that read
+/// them; each ray's weights `[ky][c]` are gathered once, so every logit is a contiguous
+/// i16 dot product of length `I`.
+fn head_by_columns(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [kd, kh, kw] = shape.kernel;
+    let columns = shape.out_size[2];
+    let taps = kd * kh * kw;
+    let ic = shape.in_channels;
+    // |offset| ≤ 255 is validated, so offset inputs fit i16.
+    let (bias, rq, off) = (
+        params.bias[0],
+        params.requant[0],
+        params.input_offset as i16,
+    );
+    let mut col = [0i16; HEAD_COL_LEN];
+    let mut ray_w = [0i16; HEAD_RAY_LEN];
+    let mut logits = [0i8; MAX_BINS];
+    for z in 0..id {
+        for x in 0..iw {
+            for y in 0..ih {
+                for (c, v) in col[y * ic..(y + 1) * ic].iter_mut().enumerate() {
+                    *v = input[((c * id + z) * ih + y) * iw + x] as i16 + off;
+                }
+            }
+            for kz in 0..kd {
+                for kx in 0..kw {
+                    for ky in 0..kh {
+                        for (c, w) in ray_w[ky * ic..(ky + 1) * ic].iter_mut().enumerate() {
+                            *w = params.weights[c * taps + (kz * kh + ky) * kw + kx] as i16;
+                        }
+                    }
+                    // Range bin i = y·kh + ky.
+                    let mut i = 0;
+                    for y in 0..ih {
+                        let xs = &col[y * ic..(y + 1) * ic];
+                        for ky in 0..kh {
+                            let ws = &ray_w[ky * ic..(ky + 1) * ic];
+                            let mut acc = bias;
+                            for (&a, &b) in xs.iter().zip(ws) {
+                                acc += a as i32 * b as i32;
+                            }
+                            logits[i] = finish(rq.apply(acc), params.relu, None);
+                            i += 1;
+                        }
+                    }
+                    let (e, a) = (z * kd + kz, x * kw + kx);
+                    depth[e * columns + a] = ray_depth(&logits[..i], soft);
+                }
+            }
+        }
+    }
+}
+
+/// Fused head, ray by ray, without gather buffers (layers too large for them).
+fn head_by_rays(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) {
+    let [rows, bins, columns] = shape.out_size;
     let [id, ih, iw] = shape.in_size;
     let [kd, kh, kw] = shape.kernel;
     let taps = kd * kh * kw;
@@ -226,7 +314,6 @@ pub fn head_soft_argmax_s8(
             depth[e * columns + a] = ray_depth(&logits[..bins], soft);
         }
     }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -308,6 +395,18 @@ mod tests {
         let exp = exp_table(0.05);
         let p = epssn_params(&exp);
         let mut shapes = vec![ConvShape::from(&config::LAYER_HEAD)];
+        // Too large for the column buffers: the ray-by-ray path.
+        shapes.push(ConvShape {
+            in_channels: 70,
+            out_channels: 1,
+            kernel: [2, 2, 3],
+            stride: [2, 2, 3],
+            padding: [0; 3],
+            output_padding: [0; 3],
+            in_size: [2, 16, 2],
+            out_size: [4, 32, 6],
+        });
+        const { assert!(70 * 16 > HEAD_COL_LEN) };
         for _ in 0..30 {
             let kernel = [1 + rng.below(3), 1 + rng.below(3), 1 + rng.below(4)];
             let in_size = [1 + rng.below(3), 1 + rng.below(6), 1 + rng.below(4)];

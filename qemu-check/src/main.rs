@@ -1,0 +1,257 @@
+//! Runs the epssn kernels built with the `dsp` feature (SMLAD/SXTB16 inline assembly) on a
+//! QEMU Cortex-M7 and compares them with the plain kernels, bit for bit, on every EPSSN-S
+//! layer (random weights; random, all-127 and all-−128 inputs).
+//!
+//! Run: `cd qemu-check && cargo run --release` (needs `qemu-system-arm`; exits non-zero on
+//! any mismatch). A standalone crate so the library workspace stays host-only.
+#![no_std]
+#![no_main]
+
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use epssn::config;
+use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
+use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
+use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
+use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
+use epssn::kernels::soft_argmax_s8::{
+    head_soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
+};
+use epssn::kernels::{ConvParams, ConvShape, Skip};
+use epssn::requant::Requant;
+use fixed::types::U16F16;
+
+/// exp(x) for x ≤ 0 by squaring a Taylor series (no libm needed for a test table).
+fn approx_exp(x: f64) -> f64 {
+    let y = x / 1024.0;
+    let mut e = 1.0 + y + y * y / 2.0 + y * y * y / 6.0;
+    for _ in 0..10 {
+        e *= e;
+    }
+    e
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    fn fill(&mut self, b: &mut [i8]) {
+        for x in b {
+            *x = self.next() as i8;
+        }
+    }
+}
+
+const MAXW: usize = 16 * 16 * 27;
+const MAXA: usize = 131072;
+
+#[entry]
+fn main() -> ! {
+    let mut rng = Rng(0x1234_5678_9abc_def1);
+    let mut w = [0i8; MAXW];
+    let mut input = [0i8; MAXA];
+    let mut a = [0i8; MAXA];
+    let mut b = [0i8; MAXA];
+    let mut bias = [0i32; 16];
+    let mut rq = [Requant::default(); 16];
+    let mut failures = 0u32;
+    let mut checked = 0u32;
+    for round in 0..3 {
+        for l in config::LAYERS.iter() {
+            let shape = ConvShape::from(l);
+            rng.fill(&mut w[..l.weight_len()]);
+            for w in w[..l.weight_len()].iter_mut() {
+                if *w == -128 {
+                    *w = -127;
+                }
+            }
+            for o in 0..l.out_channels {
+                bias[o] = (rng.next() % 40_001) as i32 - 20_000;
+                rq[o] = Requant {
+                    multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
+                    shift: -7 - (rng.next() % 3) as i32,
+                };
+            }
+            let p = ConvParams {
+                weights: &w[..l.weight_len()],
+                bias: &bias[..l.out_channels],
+                requant: &rq[..l.out_channels],
+                input_offset: if l.name == "f0" { 128 } else { 0 },
+                relu: l.relu,
+            };
+            let n_in = l.input_len();
+            let n_out = l.output_len();
+            if n_in > MAXA || n_out > MAXA {
+                continue;
+            }
+            match round {
+                0 => rng.fill(&mut input[..n_in]),
+                1 => input[..n_in].fill(127),
+                _ => input[..n_in].fill(-128),
+            }
+            let skip_rq = Requant {
+                multiplier: 1 << 30,
+                shift: 1,
+            };
+            let (ra, rb) = match l.kind {
+                config::LayerKind::Conv2d => (
+                    conv2d_s8(&shape, &input[..n_in], &p, &mut a[..n_out]),
+                    conv2d_s8_plain(&shape, &input[..n_in], &p, &mut b[..n_out]),
+                ),
+                config::LayerKind::Conv3d => (
+                    conv3d_s8(&shape, &input[..n_in], &p, &mut a[..n_out]),
+                    conv3d_s8_plain(&shape, &input[..n_in], &p, &mut b[..n_out]),
+                ),
+                config::LayerKind::ConvTranspose3d => {
+                    rng.fill(&mut a[..n_out]);
+                    b[..n_out].copy_from_slice(&a[..n_out]);
+                    let s = Skip::InPlace { requant: skip_rq };
+                    (
+                        conv_transpose3d_s8(&shape, &input[..n_in], &p, s, &mut a[..n_out]),
+                        conv_transpose3d_s8_plain(&shape, &input[..n_in], &p, s, &mut b[..n_out]),
+                    )
+                }
+            };
+            checked += 1;
+            let same = ra.is_ok() && rb.is_ok() && a[..n_out] == b[..n_out];
+            let distinct = {
+                let mut seen = [false; 256];
+                for &x in &a[..n_out] {
+                    seen[(x as i32 + 128) as usize] = true;
+                }
+                seen.iter().filter(|&&s| s).count()
+            };
+            hprintln!(
+                "round {} {}: {} ({} distinct values)",
+                round,
+                l.name,
+                if same { "bit-exact" } else { "MISMATCH" },
+                distinct
+            );
+            if !same {
+                failures += 1;
+            }
+        }
+    }
+    // Fused streaming head vs head transposed convolution + soft-argmax (plain kernels),
+    // and the cost volume with the real warp tables, optimised vs plain.
+    let exp: [u16; 256] =
+        core::array::from_fn(|d| (65535.0 * approx_exp(-(d as f64) * 0.05) + 0.5) as u16);
+    let sp = SoftArgmaxParams {
+        exp: &exp,
+        r_min16: U16F16::from_num(config::R_MIN_M),
+        step16: U16F16::from_num((config::R_MAX_M - config::R_MIN_M) / 63.0),
+    };
+    let head = &config::LAYER_HEAD;
+    let hs = ConvShape::from(head);
+    for round in 0..2 {
+        rng.fill(&mut w[..head.weight_len()]);
+        bias[0] = (rng.next() % 20_001) as i32 - 10_000;
+        rq[0] = Requant {
+            multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
+            shift: -8,
+        };
+        let p = ConvParams {
+            weights: &w[..head.weight_len()],
+            bias: &bias[..1],
+            requant: &rq[..1],
+            input_offset: 0,
+            relu: false,
+        };
+        if round == 0 {
+            rng.fill(&mut input[..head.input_len()]);
+        } else {
+            input[..head.input_len()].fill(127);
+        }
+        let mut d_fused = [U16F16::ZERO; config::DEPTH_LEN];
+        let mut d_plain = [U16F16::ZERO; config::DEPTH_LEN];
+        let r1 = head_soft_argmax_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused);
+        let r2 = conv_transpose3d_s8_plain(
+            &hs,
+            &input[..head.input_len()],
+            &p,
+            Skip::None,
+            &mut a[..head.output_len()],
+        );
+        let ss = SoftArgmaxShape {
+            rows: 32,
+            bins: 64,
+            columns: 64,
+        };
+        let r3 = soft_argmax_s8_plain(&ss, &a[..head.output_len()], &sp, &mut d_plain);
+        let same = r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain;
+        hprintln!(
+            "round {} fused head + soft-argmax: {}",
+            round,
+            if same { "bit-exact" } else { "MISMATCH" }
+        );
+        checked += 1;
+        if !same {
+            failures += 1;
+        }
+    }
+    for views in 1..=2usize {
+        let n = config::FEATURE_LEN;
+        rng.fill(&mut input[..3 * n]);
+        let (reference, rest) = input[..3 * n].split_at(n);
+        let srcs = [
+            SourceView {
+                features: &rest[..n],
+                warp: &config::WARP_TABLES[0],
+            },
+            SourceView {
+                features: &rest[n..],
+                warp: &config::WARP_TABLES[1],
+            },
+        ];
+        let crq = Requant {
+            multiplier: 1 << 30,
+            shift: -6,
+        };
+        let len = config::COST_VOLUME_LEN;
+        let r1 = cost_volume_s8(
+            &CostShape::EPSSN,
+            reference,
+            &srcs[..views],
+            crq,
+            &mut a[..len],
+        );
+        let r2 = cost_volume_s8_plain(
+            &CostShape::EPSSN,
+            reference,
+            &srcs[..views],
+            crq,
+            &mut b[..len],
+        );
+        let same = r1.is_ok() && r2.is_ok() && a[..len] == b[..len];
+        hprintln!(
+            "cost volume, {} views: {}",
+            views + 1,
+            if same { "bit-exact" } else { "MISMATCH" }
+        );
+        checked += 1;
+        if !same {
+            failures += 1;
+        }
+    }
+    hprintln!("{} layer runs, {} mismatches", checked, failures);
+    if failures == 0 {
+        debug::exit(debug::EXIT_SUCCESS);
+    } else {
+        debug::exit(debug::EXIT_FAILURE);
+    }
+    // Unreachable after the semihosting exit; trap if it ever returns.
+    cortex_m::asm::udf()
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    hprintln!("panic: {}", info);
+    debug::exit(debug::EXIT_FAILURE);
+    // Unreachable after the semihosting exit; trap if it ever returns.
+    cortex_m::asm::udf()
+}
