@@ -35,5 +35,8 @@ step "firmware: clippy and release build"
 step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
 (cd firmware && timeout 300 cargo run --release)
 
+step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"
+(cd qemu-check && cargo fmt -- --check && cargo clippy --release -- -D warnings && timeout 600 cargo run --release)
+
 step "host tests (workspace)"
 cargo test --workspace
