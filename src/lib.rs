@@ -37,6 +37,7 @@ pub mod crc32;
 pub mod geometry;
 pub mod grids;
 pub mod kernels;
+pub mod link;
 pub mod model;
 pub mod requant;
 pub mod spec;
