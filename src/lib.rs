@@ -39,5 +39,6 @@ pub mod grids;
 pub mod kernels;
 pub mod link;
 pub mod model;
+pub mod pairing;
 pub mod requant;
 pub mod spec;
