@@ -249,8 +249,8 @@ fn main() -> ! {
                 depth,
                 &now,
                 TickCounter::INSTRUCTIONS_PER_TICK,
-                // 20 ms of line silence at 25 MHz abandons a partial message.
-                500_000,
+                // 100 ms of line silence (virtual time) abandons a partial message.
+                2_500_000,
                 &high_water,
             );
             let mut uart = Uart0::new();

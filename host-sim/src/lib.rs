@@ -11,5 +11,6 @@ pub mod intref;
 pub mod polar;
 pub mod quantise;
 pub mod reference_model;
+pub mod sil;
 pub mod spec;
 pub mod synthetic;

@@ -17,6 +17,9 @@ enum Command {
     Inspect(host_sim::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
     Quantise(host_sim::quantise::QuantiseArgs),
+    /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
+    /// check the depth maps bit for bit against the host library; optional fuzz run.
+    Sil(host_sim::sil::SilArgs),
 }
 
 fn main() -> ExitCode {
@@ -25,6 +28,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
         Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
+        Command::Sil(args) => host_sim::sil::run(&args, &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
