@@ -562,7 +562,7 @@ fn malformed(rng: &mut Rng, seq: &mut u32, last: u32, image: &[u8]) -> (&'static
             )
         }
         1 => {
-            let full = if rng.next_u64() % 2 == 0 {
+            let full = if rng.next_u64() & 1 == 0 {
                 raw_bytes(&frame_header(s), image)
             } else {
                 msg_bytes(&Message::StatusRequest { seq: s })
@@ -571,7 +571,7 @@ fn malformed(rng: &mut Rng, seq: &mut u32, last: u32, image: &[u8]) -> (&'static
             ("truncated", full[..n].to_vec())
         }
         2 => {
-            let mut v = if rng.next_u64() % 4 == 0 {
+            let mut v = if rng.next_u64() & 3 == 0 {
                 raw_bytes(&frame_header(s), image)
             } else {
                 msg_bytes(&Message::StatusRequest { seq: s })
