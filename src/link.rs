@@ -354,7 +354,8 @@ impl DepthData<'_> {
         match self {
             DepthData::Values(v) => v.get(i).copied(),
             DepthData::Bytes(b) => {
-                let w = b.get(i * 4..i * 4 + 4)?;
+                let at = i.checked_mul(4)?;
+                let w = b.get(at..at.checked_add(4)?)?;
                 Some(U16F16::from_bits(u32::from_le_bytes([
                     w[0], w[1], w[2], w[3],
                 ])))
@@ -597,7 +598,8 @@ pub fn encode<E>(
 pub fn encode_to_slice(msg: &Message<'_>, out: &mut [u8]) -> Result<usize, EncodeError<SliceFull>> {
     let mut at = 0usize;
     encode(msg, &mut |bytes: &[u8]| {
-        let dst = out.get_mut(at..at + bytes.len()).ok_or(SliceFull)?;
+        let end = at.checked_add(bytes.len()).ok_or(SliceFull)?;
+        let dst = out.get_mut(at..end).ok_or(SliceFull)?;
         dst.copy_from_slice(bytes);
         at += bytes.len();
         Ok(())
@@ -1265,6 +1267,23 @@ mod tests {
         let ev = feed(&mut d, &bytes);
         assert!(matches!(ev[0], Ev::Err(_)));
         assert_eq!(ev.last(), Some(&Ev::Msg(2, kind::STATUS_REQUEST, 0)));
+    }
+
+    #[test]
+    fn depth_data_access_is_bounded() {
+        let bytes = [1u8, 0, 0, 0, 2, 0, 0];
+        let d = DepthData::Bytes(&bytes);
+        assert_eq!(d.len(), 1);
+        assert_eq!(d.get(0), Some(U16F16::from_bits(1)));
+        assert_eq!(d.get(1), None);
+        assert_eq!(d.get(usize::MAX), None);
+        let mut out = [U16F16::ZERO; 2];
+        assert!(!d.copy_to(&mut out));
+        let mut small = [0u8; 8];
+        assert_eq!(
+            encode_to_slice(&Message::Shutdown { seq: 1 }, &mut small),
+            Err(EncodeError::Sink(SliceFull))
+        );
     }
 
     #[test]

@@ -683,6 +683,12 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     if frames.is_empty() {
         bail!("{}: no frames", recording.display());
     }
+    if args.recording.is_none() {
+        // Prepared: the synthetic recording is no longer needed.
+        if let Some(dir) = recording.parent() {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
     let elf = match &args.firmware {
         Some(p) => p.clone(),
         None => build_firmware()?,
