@@ -39,6 +39,10 @@ fn main() {
     std::fs::copy(&memory, out.join("memory.x")).expect("copy memory.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory.display());
+    if std::env::var_os("CARGO_FEATURE_DEFMT").is_some() {
+        // defmt's interned strings need its linker script.
+        println!("cargo:rustc-link-arg=-Tdefmt.x");
+    }
 
     let pointer = root.join("weights/FIRMWARE_WEIGHTS");
     println!("cargo:rerun-if-changed={}", pointer.display());

@@ -17,6 +17,8 @@ if ! command -v qemu-system-arm >/dev/null 2>&1; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq qemu-system-arm >/dev/null
 fi
 qemu-system-arm --version | head -1
+# The firmware links through flip-link (stack below the statics: overflow faults).
+command -v flip-link >/dev/null 2>&1 || cargo install --locked flip-link
 
 step "format"
 cargo fmt --all -- --check
@@ -29,8 +31,9 @@ step "no_std library build for thumbv7em-none-eabihf (with and without defmt)"
 cargo build -p epssn --lib --target thumbv7em-none-eabihf
 cargo build -p epssn --lib --target thumbv7em-none-eabihf --features defmt
 
-step "firmware: clippy and release build"
+step "firmware: clippy and release build (and with defmt logging)"
 (cd firmware && cargo clippy --release -- -D warnings && cargo build --release)
+(cd firmware && cargo build --release --features defmt)
 
 step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
 (cd firmware && timeout 300 cargo run --release)
@@ -38,5 +41,8 @@ step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
 step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"
 (cd qemu-check && cargo fmt -- --check && cargo clippy --release -- -D warnings && timeout 600 cargo run --release)
 
-step "host tests (workspace)"
+step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
+
+step "software in the loop: firmware in QEMU vs the host library, bit for bit"
+cargo run --release -p host-sim -- sil --json

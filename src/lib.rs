@@ -40,6 +40,8 @@ pub mod dsp;
 pub mod geometry;
 pub mod grids;
 pub mod kernels;
+pub mod link;
 pub mod model;
+pub mod pairing;
 pub mod requant;
 pub mod spec;

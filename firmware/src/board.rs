@@ -1,6 +1,8 @@
 //! The MPS2-AN500 peripherals the firmware uses (Arm CMSDK APB timer, UART and the FPGA LED
-//! register), the only place with raw register access. A port to another board (an STM32H7
-//! module, say) replaces this file: see `firmware/README.md`.
+//! register), the stack paint and the semihosting command line: the only place with raw
+//! register and memory access. A port to another board (an STM32H7 module, say) replaces
+//! this file: see `firmware/README.md`. The rest of the firmware sees the UART through
+//! `embedded_io::{Read, Write, ReadReady}` and the LED through `embedded_hal::digital::OutputPin`.
 
 use core::ptr::{read_volatile, write_volatile};
 
@@ -10,6 +12,18 @@ use embedded_hal::digital::{ErrorType, OutputPin};
 const TIMER0: usize = 0x4000_0000;
 /// FPGA system control: LED register (bit 0 = LED0).
 const FPGAIO_LED: usize = 0x4002_8000;
+/// CMSDK APB UART 0 (QEMU connects it to the first `-serial`).
+const UART0: usize = 0x4000_4000;
+const UART_DATA: usize = 0x0;
+const UART_STATE: usize = 0x4;
+const UART_CTRL: usize = 0x8;
+const UART_BAUDDIV: usize = 0x10;
+const STATE_TX_FULL: u32 = 1 << 0;
+const STATE_RX_FULL: u32 = 1 << 1;
+const CTRL_TX_EN: u32 = 1 << 0;
+const CTRL_RX_EN: u32 = 1 << 1;
+/// Start of the data SRAM (the RAM region of memory.x).
+const RAM_ORIGIN: usize = 0x2000_0000;
 
 fn write_reg(addr: usize, value: u32) {
     // SAFETY: `addr` is one of the fixed, aligned MMIO registers above, present on the
@@ -65,4 +79,139 @@ impl OutputPin for BusyLed {
         write_reg(FPGAIO_LED, read_reg(FPGAIO_LED) | 1);
         Ok(())
     }
+}
+
+/// UART0 of the board (CMSDK APB UART), polled: one byte in each direction at a time.
+pub struct Uart0;
+
+impl Uart0 {
+    /// Enables transmitter and receiver. The baud divisor is the smallest the CMSDK UART
+    /// accepts (16); QEMU does not model the bit rate.
+    pub fn new() -> Self {
+        write_reg(UART0 + UART_BAUDDIV, 16);
+        write_reg(UART0 + UART_CTRL, CTRL_TX_EN | CTRL_RX_EN);
+        Uart0
+    }
+
+    fn rx_full() -> bool {
+        read_reg(UART0 + UART_STATE) & STATE_RX_FULL != 0
+    }
+}
+
+impl embedded_io::ErrorType for Uart0 {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io::Read for Uart0 {
+    /// Blocks until a byte arrives, then takes what is already there.
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        while !Self::rx_full() {}
+        let mut n = 0;
+        for slot in buf.iter_mut() {
+            if !Self::rx_full() {
+                break;
+            }
+            *slot = read_reg(UART0 + UART_DATA) as u8;
+            n += 1;
+        }
+        Ok(n)
+    }
+}
+
+impl embedded_io::ReadReady for Uart0 {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(Self::rx_full())
+    }
+}
+
+impl embedded_io::Write for Uart0 {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        for &b in buf {
+            while read_reg(UART0 + UART_STATE) & STATE_TX_FULL != 0 {}
+            write_reg(UART0 + UART_DATA, u32::from(b));
+        }
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        while read_reg(UART0 + UART_STATE) & STATE_TX_FULL != 0 {}
+        Ok(())
+    }
+}
+
+extern "C" {
+    /// Initial stack pointer (top of the stack), from cortex-m-rt's link.x.
+    static _stack_start: u32;
+    /// End of the static RAM sections; the stack's lower limit without flip-link.
+    static _stack_end: u32;
+}
+
+/// The stack region `[bottom, top)`: below the statics with cortex-m-rt's default layout,
+/// from the start of RAM up to the statics with flip-link (which moves the stack down).
+fn stack_region() -> (usize, usize) {
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let end = core::ptr::addr_of!(_stack_end) as usize;
+    let bottom = if end < top { end } else { RAM_ORIGIN };
+    ((bottom + 3) & !3, top & !3)
+}
+
+const PAINT: u32 = 0xDEAD_C0DE;
+
+/// Paints the unused stack below the current stack pointer, for [`stack_high_water`].
+/// Call first thing in `main`.
+#[inline(never)]
+pub fn paint_stack() {
+    let (bottom, _) = stack_region();
+    // Leave a margin under this function's own frame.
+    let sp = cortex_m::register::msp::read() as usize & !3;
+    let end = sp.saturating_sub(64);
+    let mut addr = bottom;
+    while addr < end {
+        // SAFETY: [bottom, sp − 64) is stack memory below the live frames: nothing uses it
+        // yet and there are no interrupts; the addresses are word-aligned RAM.
+        unsafe { write_volatile(addr as *mut u32, PAINT) };
+        addr += 4;
+    }
+}
+
+/// Bytes of stack ever used since [`paint_stack`]: top minus the lowest overwritten word.
+pub fn stack_high_water() -> u32 {
+    let (bottom, top) = stack_region();
+    let mut addr = bottom;
+    // SAFETY: reads of word-aligned stack RAM below the live frames or within them.
+    while addr < top && unsafe { read_volatile(addr as *const u32) } == PAINT {
+        addr += 4;
+    }
+    (top - addr) as u32
+}
+
+/// Bytes of the stack region.
+pub fn stack_size() -> u32 {
+    let (bottom, top) = stack_region();
+    (top - bottom) as u32
+}
+
+/// True when the semihosting command line (QEMU `-semihosting-config ...,arg=...`) has the
+/// word `word`.
+pub fn command_line_has(word: &str) -> bool {
+    let mut buf = [0u8; 128];
+    let mut block = [buf.as_mut_ptr() as usize, buf.len()];
+    // SAFETY: SYS_GET_CMDLINE writes at most `buf.len()` bytes into `buf` and the length
+    // into `block[1]`; both outlive the call.
+    let r = unsafe {
+        cortex_m_semihosting::syscall1(
+            cortex_m_semihosting::nr::GET_CMDLINE,
+            block.as_mut_ptr() as usize,
+        )
+    };
+    if r != 0 {
+        return false;
+    }
+    let n = block[1].min(buf.len());
+    core::str::from_utf8(&buf[..n])
+        .map(|s| s.split_ascii_whitespace().any(|w| w == word))
+        .unwrap_or(false)
 }

@@ -7,23 +7,40 @@
 //!   (the golden vector from `build.rs`).
 //!
 //! It reports instruction counts per layer. The result and exit code go out through
-//! semihosting.
+//! semihosting. With the semihosting argument `serve` (QEMU
+//! `-semihosting-config enable=on,target=native,arg=serve`) it then serves the link protocol
+//! (`epssn::link`) on UART0 until a shutdown message.
 
 #![no_std]
 #![no_main]
 
+/// Logging through defmt with the `defmt` feature, nothing otherwise.
+#[cfg(feature = "defmt")]
+macro_rules! log {
+    ($($t:tt)*) => { defmt::info!($($t)*) };
+}
+#[cfg(not(feature = "defmt"))]
+macro_rules! log {
+    ($($t:tt)*) => {{}};
+}
+
 mod board;
+#[cfg(feature = "defmt")]
+mod defmt_logger;
+mod server;
 
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_hal::digital::OutputPin;
 use epssn::config;
 use epssn::geometry;
+use epssn::link::Decoder;
 use epssn::model::{Model, Workspace};
+use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
 use static_cell::ConstStaticCell;
 
-use board::{BusyLed, TickCounter};
+use board::{BusyLed, TickCounter, Uart0};
 
 static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));
 static SELFTEST_REFERENCE: &[u8] =
@@ -33,9 +50,10 @@ static SELFTEST_DEPTH: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftes
 
 /// Scratch of one inference, in .bss (const-initialised: never built on the stack).
 static WORKSPACE: ConstStaticCell<Workspace> = ConstStaticCell::new(Workspace::new());
-/// Features of the views of one depth map.
-static FEATURES: ConstStaticCell<[[i8; config::FEATURE_LEN]; config::MAX_VIEWS]> =
-    ConstStaticCell::new([[0; config::FEATURE_LEN]; config::MAX_VIEWS]);
+/// Cached features of recent frames, for pairing by roll.
+static CACHE: ConstStaticCell<FeatureCache> = ConstStaticCell::new(FeatureCache::new());
+/// The link decoder's buffer (one whole message).
+static DECODER: ConstStaticCell<Decoder> = ConstStaticCell::new(Decoder::new());
 /// The depth map.
 static DEPTH: ConstStaticCell<[U16F16; config::DEPTH_LEN]> =
     ConstStaticCell::new([U16F16::ZERO; config::DEPTH_LEN]);
@@ -79,40 +97,63 @@ fn instructions(ticks: u32) -> u32 {
     ticks.saturating_mul(TickCounter::INSTRUCTIONS_PER_TICK)
 }
 
-/// Runs the golden pair and prints per-layer instruction counts; true when bit-exact.
-fn golden_self_test(model: &Model<'_>, clock: &TickCounter) -> bool {
-    let ws = WORKSPACE.take();
-    let feats = FEATURES.take();
-    let depth = DEPTH.take();
+/// Runs the golden pair through the serving path (feature cache, pairing by roll) and prints
+/// per-layer instruction counts; true when bit-exact.
+fn golden_self_test(
+    model: &Model<'_>,
+    clock: &TickCounter,
+    ws: &mut Workspace,
+    cache: &mut FeatureCache,
+    depth: &mut [U16F16; config::DEPTH_LEN],
+) -> bool {
     let mut led = BusyLed;
     let _ = led.set_high();
     let start = clock.now();
     let mut last = start;
     let mut ok = true;
+    let mut newest = None;
     for (v, image) in [SELFTEST_REFERENCE, SELFTEST_SOURCE].iter().enumerate() {
-        let r = model.features_probed(image, ws, &mut feats[v], |name, _| {
-            let now = clock.now();
-            hprintln!(
-                "layer {} (view {}): {} instructions",
-                name,
-                v,
-                instructions(now - last)
-            );
-            last = clock.now();
+        let roll = (config::ROLL_STEP_DEG * v as f64) as f32;
+        let r = cache.insert(v as u32, roll, |f| {
+            model.features_probed(image, ws, f, |name, _| {
+                let now = clock.now();
+                hprintln!(
+                    "layer {} (view {}): {} instructions",
+                    name,
+                    v,
+                    instructions(now - last)
+                );
+                last = clock.now();
+            })
         });
-        if let Err(e) = r {
-            hprintln!("features failed: {:?}", e);
-            ok = false;
+        match r {
+            Ok(f) => newest = Some(f),
+            Err(e) => {
+                hprintln!("features failed: {:?}", e);
+                ok = false;
+            }
         }
     }
     let features_done = clock.now();
-    let (reference, sources) = feats.split_at(1);
-    let r =
-        model.depth_from_features_probed(&reference[0], &[&sources[0]], ws, depth, |name, _| {
-            let now = clock.now();
-            hprintln!("layer {}: {} instructions", name, instructions(now - last));
-            last = clock.now();
-        });
+    let set = newest.and_then(|n| cache.find(&n, 2));
+    let pair = set.as_ref().and_then(|s| {
+        let r = cache.features(s.reference()?)?;
+        let src = cache.features(s.sources().first()?)?;
+        Some((s.reference()?.seq, r, src))
+    });
+    let Some((reference_seq, reference, source)) = pair else {
+        hprintln!("self-test pairing: no pair for rolls 0 and step");
+        return false;
+    };
+    if reference_seq != 0 {
+        hprintln!("self-test pairing: reference is frame {}", reference_seq);
+        ok = false;
+    }
+    let r = model.depth_from_features_probed(reference, &[source], ws, depth, |name, _| {
+        let now = clock.now();
+        hprintln!("layer {}: {} instructions", name, instructions(now - last));
+        last = clock.now();
+    });
     let end = clock.now();
     let _ = led.set_low();
     if let Err(e) = r {
@@ -139,6 +180,7 @@ fn golden_self_test(model: &Model<'_>, clock: &TickCounter) -> bool {
         instructions(end - features_done),
         instructions(end - start)
     );
+    cache.clear();
     ok && mismatches == 0
 }
 
@@ -153,7 +195,11 @@ fn main() -> ! {
         config::DEPTH_ROWS,
         config::DEPTH_COLUMNS
     );
+    board::paint_stack();
     let clock = TickCounter::start();
+    let ws = WORKSPACE.take();
+    let cache = CACHE.take();
+    let depth = DEPTH.take();
     let mut failures = 0;
     for k in 1..config::MAX_VIEWS {
         let bad = warp_table_mismatches(k);
@@ -171,20 +217,46 @@ fn main() -> ! {
             failures += 1;
         }
     }
-    match Model::from_blob(WEIGHTS) {
+    let model = match Model::from_blob(WEIGHTS) {
         Ok(model) => {
             hprintln!("weights: {} bytes, blob verified", WEIGHTS.len());
-            if !golden_self_test(&model, &clock) {
+            if !golden_self_test(&model, &clock, ws, cache, depth) {
                 failures += 1;
             }
+            Some(model)
         }
         Err(e) => {
             hprintln!("weights refused: {:?}", e);
             failures += 1;
+            None
         }
-    }
+    };
+    hprintln!(
+        "stack high-water mark: {} of {} bytes",
+        board::stack_high_water(),
+        board::stack_size()
+    );
     if failures == 0 {
         hprintln!("self-test: PASS");
+        if let (Some(model), true) = (model, board::command_line_has("serve")) {
+            hprintln!("serving the link on UART0");
+            let now = || clock.now();
+            let high_water = board::stack_high_water;
+            let mut server = server::Server::new(
+                &model,
+                ws,
+                cache,
+                depth,
+                &now,
+                TickCounter::INSTRUCTIONS_PER_TICK,
+                // 100 ms of line silence (virtual time) abandons a partial message.
+                2_500_000,
+                &high_water,
+            );
+            let mut uart = Uart0::new();
+            let r = server.serve(&mut uart, &mut BusyLed, DECODER.take());
+            hprintln!("link shut down: {:?}", r);
+        }
         debug::exit(debug::EXIT_SUCCESS);
     } else {
         hprintln!("self-test: FAIL ({} checks)", failures);

@@ -20,6 +20,7 @@ pub mod render;
 pub mod run;
 pub mod safetensors_io;
 pub mod scene;
+pub mod sil;
 pub mod simulate;
 pub mod spec;
 pub mod synthetic;

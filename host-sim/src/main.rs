@@ -26,6 +26,9 @@ enum Command {
     Simulate(host_sim::simulate::SimulateArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
     Metrics(host_sim::metrics::MetricsArgs),
+    /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
+    /// check the depth maps bit for bit against the host library; optional fuzz run.
+    Sil(host_sim::sil::SilArgs),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +41,7 @@ fn main() -> ExitCode {
         Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
         Command::Simulate(args) => host_sim::simulate::run(&args),
         Command::Metrics(args) => host_sim::metrics::run(&args),
+        Command::Sil(args) => host_sim::sil::run(&args, &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

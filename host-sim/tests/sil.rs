@@ -1,0 +1,91 @@
+//! Software in the loop: the firmware in QEMU against the host library, and its liveness
+//! under malformed input. Needs `qemu-system-arm` and the thumbv7em target (scripts/test-all.sh
+//! installs both); builds the firmware through `host-sim sil`.
+
+use std::process::Command;
+
+fn host_sim() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_host-sim"))
+}
+
+#[test]
+fn sil_is_bit_exact_and_firmware_survives_fuzz() {
+    let out = host_sim()
+        .args([
+            "sil", "--frames", "3", "--fuzz", "200", "--seed", "11", "--json",
+        ])
+        .output()
+        .expect("run host-sim sil");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "host-sim sil failed: {}\n{}",
+        stdout,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    // Rolls 0, 7, 14: frames 2 and 3 each complete a pair.
+    assert_eq!(r["depth_maps"], 2, "{r}");
+    assert_eq!(r["expected_depth_maps"], 2);
+    assert_eq!(r["bit_exact"], true);
+    assert_eq!(r["mismatched_values"], 0);
+    assert_eq!(r["pairs"], serde_json::json!([[1, [2]], [2, [3]]]));
+    let instr = r["instructions_per_depth_map"].as_u64().unwrap();
+    assert!(instr > 1_000_000, "instructions per depth map {instr}");
+    let (ram, flash) = (
+        r["ram_bytes"].as_u64().unwrap(),
+        r["flash_bytes"].as_u64().unwrap(),
+    );
+    let stack = r["stack_high_water_bytes"].as_u64().unwrap();
+    assert!(stack > 0 && ram > stack, "ram {ram} stack {stack}");
+    assert!(ram <= 512 * 1024, "RAM budget: {ram}");
+    assert!(
+        flash > 0 && flash <= 2 * 1024 * 1024,
+        "flash budget: {flash}"
+    );
+    // Liveness: every status request between malformed messages was answered, every
+    // malformed message got an error reply, and the firmware shut down on request.
+    let f = &r["fuzz"];
+    assert_eq!(f["status_requests"], 200);
+    assert_eq!(f["status_replies"], 200);
+    assert_eq!(f["unanswered"], 0);
+    let sent: u64 = f["sent"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(sent, 200);
+    assert!(
+        f["sent"].as_object().unwrap().len() >= 7,
+        "kinds: {}",
+        f["sent"]
+    );
+    assert_eq!(r["alive"], true);
+    // The device counted the errors it replied.
+    let replied: u64 = f["error_replies"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(r["device_errors"].as_u64().unwrap(), replied);
+}
+
+#[test]
+fn recording_with_unfit_geometry_is_refused() {
+    let rec = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../data/aris1200-telephoto-6frames.aris"
+    );
+    let out = host_sim()
+        .args(["sil", "--recording", rec])
+        .output()
+        .expect("run host-sim sil");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("geometry does not fit the model"),
+        "stderr: {err}"
+    );
+}
