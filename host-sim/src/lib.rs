@@ -2,3 +2,5 @@
 //! training, the quantiser, and software-in-the-loop runs of the firmware.
 
 #![deny(missing_docs)]
+
+pub mod model;
