@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 
 use super::data::{load_dir, split_dir, Sample};
 use super::train::{lr_at, Trainer};
-use super::{load_safetensors, parse_spec, save_safetensors, FloatModel, SplitMix64, SPEC_FILE, WEIGHTS_FILE};
+use super::{
+    load_safetensors, parse_spec, save_safetensors, FloatModel, SplitMix64, SPEC_FILE, WEIGHTS_FILE,
+};
 
 /// Arguments of `host-sim train`.
 #[derive(Args, Debug, Clone)]
@@ -117,8 +119,14 @@ fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
 
 fn write_curves(out: &Path, rows: &[LossRow]) -> Result<()> {
     write_csv(&out.join("loss.csv"), rows)?;
-    let t: Vec<(f64, f64)> = rows.iter().map(|r| (r.epoch as f64, r.train_loss as f64)).collect();
-    let v: Vec<(f64, f64)> = rows.iter().map(|r| (r.epoch as f64, r.val_loss as f64)).collect();
+    let t: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r.epoch as f64, r.train_loss as f64))
+        .collect();
+    let v: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r.epoch as f64, r.val_loss as f64))
+        .collect();
     super::plot::plot_losses(&out.join("loss.png"), &t, &v)
 }
 
@@ -153,12 +161,22 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("weights").join(&args.scene));
-    let io = (spec.input.range_bins as usize, spec.input.beam_columns as usize);
-    let oo = (spec.output.elevation_rows as usize, spec.output.azimuth_columns as usize);
+    let io = (
+        spec.input.range_bins as usize,
+        spec.input.beam_columns as usize,
+    );
+    let oo = (
+        spec.output.elevation_rows as usize,
+        spec.output.azimuth_columns as usize,
+    );
     let train_dir = split_dir(&args.data, "train").unwrap_or_else(|| args.data.clone());
     let load_views = views.max(1);
     let train_set = load_dir(&train_dir, load_views, io, oo, args.limit)?;
-    ensure!(train_set.len() >= 2, "{} has fewer than 2 samples", train_dir.display());
+    ensure!(
+        train_set.len() >= 2,
+        "{} has fewer than 2 samples",
+        train_dir.display()
+    );
     let val_set = match split_dir(&args.data, "val") {
         Some(d) => load_dir(&d, load_views, io, oo, Some(args.val_limit))?,
         None => Vec::new(),
@@ -191,7 +209,13 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             "resuming at epoch {} batch {} (step {})",
             state.epoch, state.batch_in_epoch, state.global_step
         );
-        (t, TrainState { epochs: args.epochs, ..state })
+        (
+            t,
+            TrainState {
+                epochs: args.epochs,
+                ..state
+            },
+        )
     } else {
         if args.resume {
             eprintln!("no checkpoint in {}: starting fresh", ckpt.display());
@@ -223,7 +247,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let mut last_ckpt = Instant::now();
     while state.epoch < args.epochs {
         let mut order: Vec<usize> = (0..n).collect();
-        SplitMix64::new(args.seed ^ (state.epoch as u64 + 1).wrapping_mul(0x9E37_79B9)).shuffle(&mut order);
+        SplitMix64::new(args.seed ^ (state.epoch as u64 + 1).wrapping_mul(0x9E37_79B9))
+            .shuffle(&mut order);
         while state.batch_in_epoch < steps_per_epoch {
             let s = state.batch_in_epoch * batch;
             let idx = &order[s..(s + batch).min(n)];
@@ -300,7 +325,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         "wall_time_s": state.elapsed_s,
         "weights": WEIGHTS_FILE,
     });
-    std::fs::write(out.join("manifest.json"), serde_json::to_vec_pretty(&manifest)?)?;
+    std::fs::write(
+        out.join("manifest.json"),
+        serde_json::to_vec_pretty(&manifest)?,
+    )?;
     eprintln!("wrote {}", out.display());
     Ok(())
 }
@@ -317,18 +345,36 @@ fn bench(
     let b: Vec<&Sample> = set.iter().cycle().take(batch).collect();
     trainer.step(&b, 1e-3)?;
     let t = Instant::now();
+    let cpu0 = process_cpu_seconds();
     for _ in 0..steps {
         trainer.step(&b, 1e-3)?;
     }
     let per = t.elapsed().as_secs_f64() / steps.max(1) as f64;
-    let spe = set.len().div_ceil(batch);
+    let cpu = cpu0
+        .zip(process_cpu_seconds())
+        .map(|(a, z)| (z - a) / steps.max(1) as f64);
     println!(
-        "batch {batch}: {per:.3} s/step; {} samples -> {spe} steps/epoch = {:.1} s/epoch; {:.1} epochs in 90 min",
-        set.len(),
-        per * spe as f64,
-        90.0 * 60.0 / (per * spe as f64)
+        "batch {batch}: {per:.3} s/step wall, {} s/step CPU (all threads)",
+        cpu.map_or("?".into(), |c| format!("{c:.3}"))
     );
+    for samples in [set.len(), 1000] {
+        let spe = samples / batch + usize::from(samples % batch >= 2);
+        println!(
+            "  {samples} samples: {spe} steps/epoch = {:.1} s/epoch wall; {:.1} epochs in 90 min",
+            per * spe as f64,
+            90.0 * 60.0 / (per * spe as f64)
+        );
+    }
     Ok(())
+}
+
+/// User + system CPU time of this process (Linux `/proc/self/stat`, 100 ticks/s).
+fn process_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
 }
 
 fn mean_std(v: &[f64]) -> (f64, f64) {
@@ -354,7 +400,11 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         let refs: Vec<&[Vec<u8>]> = chunk.iter().map(|s| s.views.as_slice()).collect();
         for (s, d) in chunk.iter().zip(model.predict_batch(&refs)?) {
             // The paper's MAE: 1000/(H·W)·Σ|D̂ − D| (millimetres for metre depths).
-            let sum: f64 = d.iter().zip(&s.depth).map(|(p, t)| (p - t).abs() as f64).sum();
+            let sum: f64 = d
+                .iter()
+                .zip(&s.depth)
+                .map(|(p, t)| (p - t).abs() as f64)
+                .sum();
             mae.push(1000.0 * sum / d.len() as f64);
         }
     }
@@ -373,7 +423,12 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         });
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        println!("weights {}  data {}  views {views}  samples {}", args.weights.display(), dir.display(), set.len());
+        println!(
+            "weights {}  data {}  views {views}  samples {}",
+            args.weights.display(),
+            dir.display(),
+            set.len()
+        );
         println!("MAE {m:.2} ± {sd:.2}   (CD: not computed yet)");
     }
     Ok(())

@@ -19,7 +19,10 @@ pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
 
 /// Parses the bytes of a little-endian f32 C-order `.npy` file.
 pub fn parse_npy_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>)> {
-    ensure!(bytes.len() >= 10 && &bytes[..6] == b"\x93NUMPY", "bad magic");
+    ensure!(
+        bytes.len() >= 10 && &bytes[..6] == b"\x93NUMPY",
+        "bad magic"
+    );
     let (hlen, start) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
         2 | 3 => {
@@ -45,7 +48,10 @@ pub fn parse_npy_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>)> {
     };
     let descr = field("descr")?;
     ensure!(descr.starts_with("'<f4'"), "dtype is not <f4: {descr}");
-    ensure!(field("fortran_order")?.starts_with("False"), "Fortran order");
+    ensure!(
+        field("fortran_order")?.starts_with("False"),
+        "Fortran order"
+    );
     let shape_text = field("shape")?;
     let open = shape_text.find('(').ok_or_else(|| anyhow!("bad shape"))?;
     let close = shape_text.find(')').ok_or_else(|| anyhow!("bad shape"))?;
@@ -53,7 +59,10 @@ pub fn parse_npy_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>)> {
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().map_err(|e| anyhow!("bad shape {s}: {e}")))
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|e| anyhow!("bad shape {s}: {e}"))
+        })
         .collect::<Result<Vec<_>>>()?;
     let count: usize = shape.iter().product();
     let data = &bytes[start + hlen..];
@@ -101,10 +110,7 @@ pub fn load_sample(
 ) -> Result<Sample> {
     let mut imgs = Vec::new();
     for k in 0..views {
-        let v = load_2d(
-            &dir.join(format!("polar_view{k}.npy")),
-            [input.0, input.1],
-        )?;
+        let v = load_2d(&dir.join(format!("polar_view{k}.npy")), [input.0, input.1])?;
         imgs.push(
             v.iter()
                 .map(|&x| x.round().clamp(0.0, 255.0) as u8)

@@ -187,7 +187,10 @@ impl Statics {
             .map_err(|e| anyhow!("cannot derive the grids of the spec: {e:?}"))?;
         let wf = grids.feature_azimuths.len();
         let n = grids.plane_elevations.len();
-        ensure!(wf >= 2 && n >= 1, "spec has too few feature columns or planes");
+        ensure!(
+            wf >= 2 && n >= 1,
+            "spec has too few feature columns or planes"
+        );
         let one = (1u32 << spec.warp.fraction_bits) as f32;
         let mut warp = Vec::new();
         for k in 1..=2 {
@@ -212,7 +215,11 @@ impl Statics {
         }
         let statics = Self {
             spec: spec.clone(),
-            feature_names: spec.feature_net.iter().map(|l| l.name.to_string()).collect(),
+            feature_names: spec
+                .feature_net
+                .iter()
+                .map(|l| l.name.to_string())
+                .collect(),
             feature_relu: spec.feature_net.iter().map(|l| l.relu).collect(),
             cost_names: spec.cost_net.iter().map(|l| l.name.to_string()).collect(),
             cost_relu: spec.cost_net.iter().map(|l| l.relu).collect(),
@@ -235,12 +242,24 @@ impl Statics {
     /// Walks the layer chain with the spec's sizes and checks every hand-over.
     fn check_shapes(&self) -> Result<()> {
         let s = &self.spec;
-        ensure!(!s.feature_net.is_empty() && !s.cost_net.is_empty(), "empty network");
+        ensure!(
+            !s.feature_net.is_empty() && !s.cost_net.is_empty(),
+            "empty network"
+        );
         let mut c = 1usize;
         let mut hw = vec![s.input.range_bins as usize, s.input.beam_columns as usize];
         for l in &s.feature_net {
-            ensure!(l.kind == LayerKind::Conv2d, "feature layer {} must be conv2d", l.name);
-            ensure!(l.in_channels as usize == c, "layer {} expects {} channels, gets {c}", l.name, l.in_channels);
+            ensure!(
+                l.kind == LayerKind::Conv2d,
+                "feature layer {} must be conv2d",
+                l.name
+            );
+            ensure!(
+                l.in_channels as usize == c,
+                "layer {} expects {} channels, gets {c}",
+                l.name,
+                l.in_channels
+            );
             hw = l.output_size(&hw).to_vec();
             c = l.out_channels as usize;
         }
@@ -259,14 +278,23 @@ impl Statics {
                 "cost layer {} must be 3D",
                 l.name
             );
-            ensure!(l.in_channels as usize == c, "layer {} expects {} channels, gets {c}", l.name, l.in_channels);
+            ensure!(
+                l.in_channels as usize == c,
+                "layer {} expects {} channels, gets {c}",
+                l.name,
+                l.in_channels
+            );
             dims = l.output_size(&dims).to_vec();
             c = l.out_channels as usize;
             if let Some(skip) = &self.cost_skip[i] {
                 let (sc, sd) = shapes
                     .get(skip)
                     .ok_or_else(|| anyhow!("layer {} skips from unknown tensor {skip}", l.name))?;
-                ensure!(*sc == c && *sd == dims, "skip {skip} does not match layer {}", l.name);
+                ensure!(
+                    *sc == c && *sd == dims,
+                    "skip {skip} does not match layer {}",
+                    l.name
+                );
             }
             shapes.insert(l.name.to_string(), (c, dims.clone()));
         }
@@ -341,7 +369,11 @@ fn expect_shape(map: &BTreeMap<String, NamedTensor>, name: &str, shape: &[usize]
 }
 
 fn arr<const N: usize>(v: &[u8]) -> Result<[usize; N]> {
-    ensure!(v.len() == N, "expected {N} values per axis, got {}", v.len());
+    ensure!(
+        v.len() == N,
+        "expected {N} values per axis, got {}",
+        v.len()
+    );
     let mut a = [0usize; N];
     for (o, &x) in a.iter_mut().zip(v) {
         *o = x as usize;
@@ -386,24 +418,38 @@ pub fn init_tensors(spec: &ModelSpec, seed: u64) -> BTreeMap<String, NamedTensor
     let mut rng = SplitMix64::new(seed);
     let mut map = BTreeMap::new();
     for l in spec.feature_net.iter().chain(spec.cost_net.iter()) {
-        let fan_in = l.in_channels as usize * l.kernel.iter().map(|&k| k as usize).product::<usize>();
+        let fan_in =
+            l.in_channels as usize * l.kernel.iter().map(|&k| k as usize).product::<usize>();
         let bound = 1.0 / (fan_in.max(1) as f32).sqrt();
         for (name, shape) in layer_param_shapes(l) {
             let count = shape.iter().product();
             let data: Vec<f32> = if name.ends_with(".conv.weight") || name.ends_with(".conv.bias") {
-                (0..count).map(|_| (rng.unit() * 2.0 - 1.0) * bound).collect()
+                (0..count)
+                    .map(|_| (rng.unit() * 2.0 - 1.0) * bound)
+                    .collect()
             } else if name.ends_with(".gamma") || name.ends_with(".running_var") {
                 vec![1.0; count]
             } else {
                 vec![0.0; count]
             };
-            map.insert(name, NamedTensor { shape, data, id: None });
+            map.insert(
+                name,
+                NamedTensor {
+                    shape,
+                    data,
+                    id: None,
+                },
+            );
         }
     }
     map
 }
 
-fn build_layer(l: &LayerSpec, map: &BTreeMap<String, NamedTensor>, device: &Device) -> Result<Layer> {
+fn build_layer(
+    l: &LayerSpec,
+    map: &BTreeMap<String, NamedTensor>,
+    device: &Device,
+) -> Result<Layer> {
     for (name, shape) in layer_param_shapes(l) {
         expect_shape(map, &name, &shape)?;
     }
@@ -486,7 +532,11 @@ fn export<const D: usize>(p: &Param<Tensor<D>>) -> NamedTensor {
     let t = p.val();
     NamedTensor {
         shape: t.dims().to_vec(),
-        data: t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default(),
+        data: t
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap_or_default(),
         id: Some(p.id.val()),
     }
 }
@@ -495,7 +545,11 @@ fn export_running(r: &RunningState<Tensor<1>>) -> NamedTensor {
     let t = r.value_sync();
     NamedTensor {
         shape: t.dims().to_vec(),
-        data: t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default(),
+        data: t
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap_or_default(),
         id: None,
     }
 }
@@ -556,8 +610,14 @@ impl EpssnModel {
             if let Some(bn) = &layer.bn {
                 map.insert(format!("{n}.bn.gamma"), export(&bn.gamma));
                 map.insert(format!("{n}.bn.beta"), export(&bn.beta));
-                map.insert(format!("{n}.bn.running_mean"), export_running(&bn.running_mean));
-                map.insert(format!("{n}.bn.running_var"), export_running(&bn.running_var));
+                map.insert(
+                    format!("{n}.bn.running_mean"),
+                    export_running(&bn.running_mean),
+                );
+                map.insert(
+                    format!("{n}.bn.running_var"),
+                    export_running(&bn.running_var),
+                );
             }
         }
         map
@@ -565,10 +625,17 @@ impl EpssnModel {
 
     /// Forward pass. `views[k]` is `[B][1][R][W]` with raw u8 values as f32; 2 or 3 views
     /// (view 0 = reference). With `sink`, every intermediate activation is appended to it.
-    pub fn forward(&self, views: &[Tensor<4>], mut sink: Option<&mut Vec<Activation>>) -> Result<ForwardOut> {
+    pub fn forward(
+        &self,
+        views: &[Tensor<4>],
+        mut sink: Option<&mut Vec<Activation>>,
+    ) -> Result<ForwardOut> {
         let st = &self.statics;
         let nv = views.len();
-        ensure!((2..=3).contains(&nv), "the model takes 2 or 3 views, got {nv}");
+        ensure!(
+            (2..=3).contains(&nv),
+            "the model takes 2 or 3 views, got {nv}"
+        );
         let [b, _, _, _] = views[0].dims();
         let recording = sink.is_some();
         let mut record = |name: &str, t: TensorData| {
@@ -662,9 +729,14 @@ impl EpssnModel {
         }
         let logits = y;
         let [_, _, e, r, a] = logits.dims();
-        ensure!(r == st.depth_bins.len(), "head gives {r} range bins, spec has {}", st.depth_bins.len());
+        ensure!(
+            r == st.depth_bins.len(),
+            "head gives {r} range bins, spec has {}",
+            st.depth_bins.len()
+        );
         let p = softmax(logits.clone(), 3);
-        let bins = Tensor::<1>::from_data(TensorData::new(st.depth_bins.clone(), [r]), &device).reshape([1, 1, 1, r, 1]);
+        let bins = Tensor::<1>::from_data(TensorData::new(st.depth_bins.clone(), [r]), &device)
+            .reshape([1, 1, 1, r, 1]);
         let depth = (p.clone() * bins).sum_dim(3).reshape([b, e, a]);
         if recording {
             record("prob", p.to_data());
@@ -678,10 +750,17 @@ impl EpssnModel {
 pub fn images_tensor(images: &[&[u8]], r: usize, w: usize, device: &Device) -> Result<Tensor<4>> {
     let mut data = Vec::with_capacity(images.len() * r * w);
     for img in images {
-        ensure!(img.len() == r * w, "image has {} values, expected {r}×{w}", img.len());
+        ensure!(
+            img.len() == r * w,
+            "image has {} values, expected {r}×{w}",
+            img.len()
+        );
         data.extend(img.iter().map(|&v| v as f32));
     }
-    Ok(Tensor::from_data(TensorData::new(data, [images.len(), 1, r, w]), device))
+    Ok(Tensor::from_data(
+        TensorData::new(data, [images.len(), 1, r, w]),
+        device,
+    ))
 }
 
 /// Saves named tensors as SafeTensors (f32, little-endian) with metadata.
@@ -692,7 +771,13 @@ pub fn save_safetensors(
 ) -> Result<()> {
     let bytes: Vec<(String, Vec<u8>, Vec<usize>)> = tensors
         .iter()
-        .map(|(n, t)| (n.clone(), t.data.iter().flat_map(|v| v.to_le_bytes()).collect(), t.shape.clone()))
+        .map(|(n, t)| {
+            (
+                n.clone(),
+                t.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                t.shape.clone(),
+            )
+        })
         .collect();
     let ids: BTreeMap<&str, u64> = tensors
         .iter()
@@ -700,10 +785,18 @@ pub fn save_safetensors(
         .collect();
     metadata.insert("param_ids".into(), serde_json::to_string(&ids)?);
     metadata.insert("bn_epsilon".into(), format!("{BN_EPSILON:e}"));
-    metadata.insert("input_scale".into(), "1/255 (applied inside the model)".into());
+    metadata.insert(
+        "input_scale".into(),
+        "1/255 (applied inside the model)".into(),
+    );
     let views = bytes
         .iter()
-        .map(|(n, b, s)| Ok((n.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?)))
+        .map(|(n, b, s)| {
+            Ok((
+                n.clone(),
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?,
+            ))
+        })
         .collect::<Result<Vec<_>>>()?;
     let out = safetensors::serialize(views, Some(metadata))?;
     let tmp = path.with_extension("safetensors.tmp");
@@ -727,7 +820,10 @@ pub fn load_safetensors(path: &Path) -> Result<BTreeMap<String, NamedTensor>> {
     let mut map = BTreeMap::new();
     for name in st.names() {
         let t = st.tensor(name)?;
-        ensure!(t.dtype() == safetensors::Dtype::F32, "tensor {name} is not f32");
+        ensure!(
+            t.dtype() == safetensors::Dtype::F32,
+            "tensor {name} is not f32"
+        );
         let data = t
             .data()
             .chunks_exact(4)
@@ -780,8 +876,14 @@ impl FloatModel {
         let (r, w) = self.model.statics.input_size();
         ensure!(!samples.is_empty(), "no samples");
         let nv = samples[0].len();
-        ensure!((1..=3).contains(&nv), "1, 2 or 3 views per sample, got {nv}");
-        ensure!(samples.iter().all(|s| s.len() == nv), "samples differ in view count");
+        ensure!(
+            (1..=3).contains(&nv),
+            "1, 2 or 3 views per sample, got {nv}"
+        );
+        ensure!(
+            samples.iter().all(|s| s.len() == nv),
+            "samples differ in view count"
+        );
         // One view: the reference is its own source (the single-view ablation).
         let used = nv.max(2);
         (0..used)
@@ -804,7 +906,12 @@ impl FloatModel {
         let views = self.view_tensors(samples)?;
         let out = self.model.forward(&views, None)?;
         let (e, a) = self.model.statics.output_size();
-        let data = out.depth.into_data().convert::<f32>().try_to_vec::<f32>().map_err(|e| anyhow!("{e:?}"))?;
+        let data = out
+            .depth
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .map_err(|e| anyhow!("{e:?}"))?;
         Ok(data.chunks(e * a).map(|c| c.to_vec()).collect())
     }
 
@@ -870,7 +977,12 @@ mod tests {
         let t = Tensor::<4>::from_data(TensorData::new(f.clone(), [1, c, h, wf]), &device);
         for k in 1..=2 {
             let table = grids.warp_table(&spec, k).unwrap();
-            let got = st.warp(t.clone(), k).unwrap().into_data().try_to_vec::<f32>().unwrap();
+            let got = st
+                .warp(t.clone(), k)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap();
             let mut visible = 0;
             for ci in 0..c {
                 for j in 0..n {
@@ -883,16 +995,26 @@ mod tests {
                             } else {
                                 visible += 1;
                                 let a = e.fraction as f32 / 256.0;
-                                let right = if e.fraction > 0 { at(e.column as usize + 1) * a } else { 0.0 };
+                                let right = if e.fraction > 0 {
+                                    at(e.column as usize + 1) * a
+                                } else {
+                                    0.0
+                                };
                                 at(e.column as usize) * (1.0 - a) + right
                             };
                             let g = got[((ci * n + j) * h + hi) * wf + b];
-                            assert!((g - want).abs() <= 1e-6, "view {k} c{ci} j{j} h{hi} b{b}: {g} vs {want}");
+                            assert!(
+                                (g - want).abs() <= 1e-6,
+                                "view {k} c{ci} j{j} h{hi} b{b}: {g} vs {want}"
+                            );
                         }
                     }
                 }
             }
-            assert!(visible > 0 && visible < c * n * h * wf, "the table has visible and invisible entries");
+            assert!(
+                visible > 0 && visible < c * n * h * wf,
+                "the table has visible and invisible entries"
+            );
         }
     }
 
@@ -939,7 +1061,11 @@ mod tests {
                         let e = table[j * wf + b];
                         let warped = if e.visible {
                             let a = e.fraction as f32 / 256.0;
-                            let right = if e.fraction > 0 { at(e.column as usize + 1) * a } else { 0.0 };
+                            let right = if e.fraction > 0 {
+                                at(e.column as usize + 1) * a
+                            } else {
+                                0.0
+                            };
                             at(e.column as usize) * (1.0 - a) + right
                         } else {
                             0.0

@@ -108,7 +108,10 @@ pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Res
     if y1 <= y0 {
         y1 = y0 + 1.0;
     }
-    let (pw, ph) = ((W as i64 - LEFT - RIGHT) as f64, (H as i64 - TOP - BOTTOM) as f64);
+    let (pw, ph) = (
+        (W as i64 - LEFT - RIGHT) as f64,
+        (H as i64 - TOP - BOTTOM) as f64,
+    );
     let map = |(x, y): (f64, f64)| {
         (
             LEFT + ((x - x0) / (x1 - x0) * pw).round() as i64,
@@ -122,11 +125,34 @@ pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Res
         line(&mut img, (LEFT, y), (W as i64 - RIGHT, y), grey);
     }
     line(&mut img, (LEFT, TOP), (LEFT, H as i64 - BOTTOM), black);
-    line(&mut img, (LEFT, H as i64 - BOTTOM), (W as i64 - RIGHT, H as i64 - BOTTOM), black);
+    line(
+        &mut img,
+        (LEFT, H as i64 - BOTTOM),
+        (W as i64 - RIGHT, H as i64 - BOTTOM),
+        black,
+    );
     text(&mut img, 4, TOP - 4, &format!("{y1:.3}"), black);
-    text(&mut img, 4, H as i64 - BOTTOM - 6, &format!("{y0:.3}"), black);
-    text(&mut img, LEFT, H as i64 - BOTTOM + 8, &format!("{x0:.0}"), black);
-    text(&mut img, W as i64 - RIGHT - 40, H as i64 - BOTTOM + 8, &format!("{x1:.0}"), black);
+    text(
+        &mut img,
+        4,
+        H as i64 - BOTTOM - 6,
+        &format!("{y0:.3}"),
+        black,
+    );
+    text(
+        &mut img,
+        LEFT,
+        H as i64 - BOTTOM + 8,
+        &format!("{x0:.0}"),
+        black,
+    );
+    text(
+        &mut img,
+        W as i64 - RIGHT - 40,
+        H as i64 - BOTTOM + 8,
+        &format!("{x1:.0}"),
+        black,
+    );
     for (pts, c) in [(train, Rgb([31, 119, 180])), (val, Rgb([255, 127, 14]))] {
         let mut prev: Option<(i64, i64)> = None;
         for &p in pts {

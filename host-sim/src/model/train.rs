@@ -57,10 +57,18 @@ pub fn batch_tensors(
         let mut d = Vec::with_capacity(batch.len() * e * a);
         for s in batch {
             let v = f(s);
-            ensure!(v.len() == e * a, "label of {} has {} values", s.dir.display(), v.len());
+            ensure!(
+                v.len() == e * a,
+                "label of {} has {} values",
+                s.dir.display(),
+                v.len()
+            );
             d.extend_from_slice(v);
         }
-        Ok(Tensor::from_data(TensorData::new(d, [batch.len(), e, a]), device))
+        Ok(Tensor::from_data(
+            TensorData::new(d, [batch.len(), e, a]),
+            device,
+        ))
     };
     Ok((vt, stack(&|s| &s.depth)?, stack(&|s| &s.mask)?))
 }
