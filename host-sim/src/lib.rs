@@ -5,12 +5,14 @@
 
 pub mod aris;
 pub mod beams;
+pub mod bench;
 pub mod dataset;
 pub mod floatref;
 pub mod groundtruth;
 pub mod inspect;
 pub mod intref;
 pub mod metrics;
+pub mod model;
 pub mod npy;
 pub mod polar;
 pub mod preview;

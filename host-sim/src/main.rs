@@ -29,6 +29,12 @@ enum Command {
     /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
     /// check the depth maps bit for bit against the host library; optional fuzz run.
     Sil(host_sim::sil::SilArgs),
+    /// Per-layer MACs and QEMU Cortex-M7 instructions of the firmware.
+    Bench(host_sim::bench::BenchArgs),
+    /// Train the float EPSSN on simulated data.
+    Train(host_sim::model::cli::TrainArgs),
+    /// Evaluate float weights on a simulated test folder (CD and MAE as in the paper).
+    Eval(host_sim::model::cli::EvalArgs),
 }
 
 fn main() -> ExitCode {
@@ -42,6 +48,9 @@ fn main() -> ExitCode {
         Command::Simulate(args) => host_sim::simulate::run(&args),
         Command::Metrics(args) => host_sim::metrics::run(&args),
         Command::Sil(args) => host_sim::sil::run(&args, &mut stdout.lock()),
+        Command::Bench(args) => host_sim::bench::run(&args, &mut stdout.lock()),
+        Command::Train(args) => host_sim::model::cli::train(&args),
+        Command::Eval(args) => host_sim::model::cli::eval(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

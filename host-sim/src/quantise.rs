@@ -446,34 +446,90 @@ mod tests {
 /// `host-sim quantise`: float weights + calibration data → blob and manifest.
 #[derive(clap::Args, Debug)]
 pub struct QuantiseArgs {
+    /// Quantise the trained model in this weights folder (`model.safetensors`); the blob and
+    /// `quantisation.json` are written beside it unless `--out` says otherwise.
+    #[arg(long, conflicts_with = "random_init")]
+    pub weights: Option<std::path::PathBuf>,
+    /// Calibration data: simulated sample folders (`DIR/train/...`); training data only, so
+    /// that accuracy figures on the test split stay held-out.
+    #[arg(long, requires = "weights")]
+    pub calib: Option<std::path::PathBuf>,
     /// Quantise an untrained, He-initialised model with this seed (for bit-exactness runs and
-    /// benchmarks before trained weights exist).
+    /// benchmarks before trained weights exist), calibrated on synthetic images.
     #[arg(long)]
     pub random_init: Option<u64>,
     /// Number of calibration inputs.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 32)]
     pub calibration_samples: usize,
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
-    pub out: std::path::PathBuf,
+    pub out: Option<std::path::PathBuf>,
 }
 
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
-    let Some(seed) = args.random_init else {
-        bail!("give --random-init SEED (quantising trained weights needs the float model)");
+    let n = args.calibration_samples.max(1);
+    let (weights, traces, source, dir) = match (&args.weights, args.random_init) {
+        (Some(dir), None) => {
+            let weights =
+                crate::safetensors_io::load_float_weights(&dir.join("model.safetensors"))?;
+            let calib = args
+                .calib
+                .as_ref()
+                .ok_or_else(|| anyhow!("--calib DATA (training split) is needed with --weights"))?;
+            let samples = crate::dataset::sample_dirs(calib, crate::scene::Split::Train)?;
+            if samples.is_empty() {
+                bail!("no training samples under {}", calib.display());
+            }
+            // Evenly spread over the split.
+            let step = (samples.len() / n).max(1);
+            let traces = samples
+                .iter()
+                .step_by(step)
+                .take(n)
+                .map(|d| {
+                    let s = crate::dataset::Sample::load(d)?;
+                    let views = s.polar_views_u8();
+                    let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
+                    crate::floatref::run(&weights, &refs[..config::VIEWS.min(refs.len())])
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let src = serde_json::json!({
+                "safetensors": "model.safetensors",
+                "calibration": { "data": calib.display().to_string(), "split": "train", "samples": traces.len() },
+            });
+            (
+                weights,
+                traces,
+                src,
+                args.out.clone().unwrap_or_else(|| dir.clone()),
+            )
+        }
+        (None, Some(seed)) => {
+            let weights = crate::synthetic::random_float_weights(seed);
+            let mut rng = crate::synthetic::Rng(seed ^ 0x5EED);
+            let traces = (0..n.min(8))
+                .map(|s| {
+                    let a = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37);
+                    let b = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37 + 0.1);
+                    crate::floatref::run(&weights, &[&a, &b])
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let dir = args
+                .out
+                .clone()
+                .ok_or_else(|| anyhow!("--out is needed with --random-init"))?;
+            (
+                weights,
+                traces,
+                serde_json::json!({ "random_init": seed }),
+                dir,
+            )
+        }
+        _ => bail!("give --weights DIR --calib DATA, or --random-init SEED"),
     };
-    let weights = crate::synthetic::random_float_weights(seed);
-    let mut rng = crate::synthetic::Rng(seed ^ 0x5EED);
-    let traces = (0..args.calibration_samples.max(1))
-        .map(|s| {
-            let a = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37);
-            let b = crate::synthetic::synthetic_image(&mut rng, s as f64 * 0.37 + 0.1);
-            crate::floatref::run(&weights, &[&a, &b])
-        })
-        .collect::<Result<Vec<_>>>()?;
     let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
-    write(&args.out, &q, serde_json::json!({ "random_init": seed }))?;
+    write(&dir, &q, source)?;
     writeln!(
         out,
         "wrote {} ({} bytes, spec {} {:#010x}) and quantisation.json to {}",
@@ -481,7 +537,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         q.blob.len(),
         config::SPEC_NAME,
         q.spec_hash,
-        args.out.display()
+        dir.display()
     )?;
     Ok(())
 }

@@ -131,7 +131,8 @@ fn firmware_blob() -> Result<Vec<u8>> {
 }
 
 /// Builds the firmware (cargo decides whether anything changed) and returns the ELF.
-fn build_firmware() -> Result<PathBuf> {
+/// Builds the firmware (release) and returns the ELF path.
+pub fn build_firmware() -> Result<PathBuf> {
     let dir = repo_root().join("firmware");
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .args(["build", "--release", "--quiet"])

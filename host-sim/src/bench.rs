@@ -1,0 +1,106 @@
+//! `host-sim bench`: boots the firmware's self-test in QEMU (Cortex-M7, `-icount shift=0`) and
+//! prints, per layer, the multiply-accumulates (from the compiled layer shapes) next to the
+//! instructions the target spent (CMSDK timer ticks × 40, printed by the firmware).
+
+use std::io::Write;
+use std::process::Command;
+
+use anyhow::{bail, Context, Result};
+use epssn::config::LAYERS;
+
+/// Arguments of `host-sim bench`.
+#[derive(clap::Args, Debug)]
+pub struct BenchArgs {
+    /// Firmware ELF (default: build `firmware/` in release).
+    #[arg(long)]
+    pub firmware: Option<std::path::PathBuf>,
+}
+
+/// Instruction count of one `layer NAME[ (view V)]: N instructions` line.
+fn parse_line(line: &str) -> Option<(String, u64)> {
+    let rest = line.strip_prefix("layer ")?;
+    let (name, count) = rest.split_once(": ")?;
+    let n = count.strip_suffix(" instructions")?.trim().parse().ok()?;
+    Some((name.to_string(), n))
+}
+
+/// Runs `host-sim bench`.
+pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
+    let elf = match &args.firmware {
+        Some(p) => p.clone(),
+        None => crate::sil::build_firmware()?,
+    };
+    let o = Command::new("qemu-system-arm")
+        .args([
+            "-machine",
+            "mps2-an500",
+            "-cpu",
+            "cortex-m7",
+            "-nographic",
+            "-monitor",
+            "none",
+        ])
+        .args([
+            "-serial",
+            "null",
+            "-semihosting-config",
+            "enable=on,target=native",
+        ])
+        .args(["-icount", "shift=0", "-kernel"])
+        .arg(&elf)
+        .output()
+        .context("starting qemu-system-arm (is QEMU installed?)")?;
+    let console = String::from_utf8_lossy(&o.stdout);
+    if !o.status.success() {
+        bail!("firmware self-test failed:\n{console}");
+    }
+    let counts: Vec<(String, u64)> = console.lines().filter_map(parse_line).collect();
+    writeln!(
+        out,
+        "{:<24} {:>12} {:>14} {:>10}",
+        "layer", "MACs", "instructions", "instr/MAC"
+    )?;
+    let (mut macs_total, mut instr_total) = (0u64, 0u64);
+    for (name, instr) in &counts {
+        let base = name.split(' ').next().unwrap_or(name);
+        let macs = LAYERS
+            .iter()
+            .find(|l| l.name == base || (base == "head+soft-argmax" && l.name == "head"))
+            .map_or(0, |l| l.macs() as u64);
+        macs_total += macs;
+        instr_total += instr;
+        let per = if macs > 0 {
+            format!("{:.2}", *instr as f64 / macs as f64)
+        } else {
+            "-".into()
+        };
+        writeln!(out, "{name:<24} {macs:>12} {instr:>14} {per:>10}")?;
+    }
+    writeln!(
+        out,
+        "{:<24} {:>12} {:>14} {:>10.2}",
+        "total (full pair)",
+        macs_total,
+        instr_total,
+        instr_total as f64 / macs_total.max(1) as f64
+    )?;
+    for line in console
+        .lines()
+        .filter(|l| l.starts_with("instructions:") || l.starts_with("stack"))
+    {
+        writeln!(out, "{line}")?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn parses_firmware_lines() {
+        assert_eq!(
+            super::parse_line("layer f0 (view 1): 6939320 instructions"),
+            Some(("f0 (view 1)".into(), 6939320))
+        );
+        assert_eq!(super::parse_line("self-test: PASS"), None);
+    }
+}
