@@ -45,4 +45,4 @@ step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
-cargo run --release -p host-sim -- sil --json
+cargo run -p host-sim -- sil --json   # dev profile: dependencies are opt-level 3, no second burn build

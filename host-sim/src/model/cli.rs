@@ -77,6 +77,10 @@ pub struct EvalArgs {
     /// Use at most this many samples.
     #[arg(long)]
     pub limit: Option<usize>,
+    /// Also run the int8 library on the blob in the weights folder (`epssn-s.q8.bin`): its
+    /// accuracy and its mean absolute depth difference from the float model.
+    #[arg(long)]
+    pub int8: bool,
 }
 
 /// One row of the loss history.
@@ -384,6 +388,35 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, var.sqrt())
 }
 
+/// The int8 library's depth map (metres) for one sample's views; one view is fed as its own
+/// source, as the float model's single-view ablation does.
+fn int8_depth(
+    model: &epssn::model::Model<'_>,
+    views: &[Vec<u8>],
+    ws: &mut epssn::model::Workspace,
+) -> Result<Vec<f32>> {
+    let feats = views
+        .iter()
+        .map(|v| {
+            let mut f = vec![0i8; epssn::config::FEATURE_LEN];
+            model
+                .features(v, ws, &mut f)
+                .map_err(|e| anyhow::anyhow!("int8 features: {e:?}"))?;
+            Ok(f)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let sources: Vec<&[i8]> = if feats.len() == 1 {
+        vec![&feats[0]]
+    } else {
+        feats[1..].iter().map(|f| f.as_slice()).collect()
+    };
+    let mut depth = vec![fixed::types::U16F16::ZERO; epssn::config::DEPTH_LEN];
+    model
+        .depth_from_features(&feats[0], &sources, ws, &mut depth)
+        .map_err(|e| anyhow::anyhow!("int8 depth: {e:?}"))?;
+    Ok(depth.iter().map(|d| d.to_num::<f32>()).collect())
+}
+
 /// Runs `host-sim eval`.
 pub fn eval(args: &EvalArgs) -> Result<()> {
     let model = FloatModel::load(&args.weights)?;
@@ -396,9 +429,38 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     let set = load_dir(&dir, views, st.input_size(), st.output_size(), args.limit)?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
     let (mut mae, mut cd) = (Vec::new(), Vec::new());
+    let (mut q_mae, mut q_cd, mut q_diff) = (Vec::new(), Vec::new(), Vec::new());
+    let blob = if args.int8 {
+        std::fs::read(args.weights.join(crate::quantise::BLOB_FILE))
+            .with_context(|| format!("reading the int8 blob in {}", args.weights.display()))?
+    } else {
+        Vec::new()
+    };
+    let int8 = if args.int8 {
+        Some(
+            epssn::model::Model::from_blob(&blob)
+                .map_err(|e| anyhow::anyhow!("int8 blob refused: {e:?}"))?,
+        )
+    } else {
+        None
+    };
+    let mut ws = Box::new(epssn::model::Workspace::new());
     for chunk in set.chunks(8) {
         let refs: Vec<&[Vec<u8>]> = chunk.iter().map(|s| s.views.as_slice()).collect();
         for (s, d) in chunk.iter().zip(model.predict_batch(&refs)?) {
+            if let Some(q) = &int8 {
+                let dq = int8_depth(q, &s.views, &mut ws)?;
+                let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
+                let m = crate::metrics::evaluate(&dq, &s.depth, &mask)?;
+                if m.mae.is_finite() {
+                    q_mae.push(m.mae);
+                }
+                if m.cd.is_finite() {
+                    q_cd.push(m.cd);
+                }
+                let diff: f64 = dq.iter().zip(&d).map(|(a, b)| (a - b).abs() as f64).sum();
+                q_diff.push(1000.0 * diff / dq.len() as f64);
+            }
             // The paper's MAE and CD over its mask (host_sim::metrics documents the reading).
             let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
             let m = crate::metrics::evaluate(&d, &s.depth, &mask)?;
@@ -412,6 +474,12 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     }
     let (m, sd) = mean_std(&mae);
     let (c, csd) = mean_std(&cd);
+    let int8_json = args.int8.then(|| {
+        let (qm, qsd) = mean_std(&q_mae);
+        let (qc, qcsd) = mean_std(&q_cd);
+        let (dm, _) = mean_std(&q_diff);
+        serde_json::json!({ "mae_mean": qm, "mae_std": qsd, "cd_mean": qc, "cd_std": qcsd, "int8_vs_float_mae": dm })
+    });
     if args.json {
         let j = serde_json::json!({
             "weights": args.weights.display().to_string(),
@@ -422,6 +490,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             "mae_std": sd,
             "cd_mean": c,
             "cd_std": csd,
+            "int8": int8_json,
         });
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
@@ -431,7 +500,17 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             dir.display(),
             set.len()
         );
-        println!("MAE {m:.2} ± {sd:.2} mm   CD {c:.4} ± {csd:.4}");
+        println!("float: MAE {m:.2} ± {sd:.2} mm   CD {c:.4} ± {csd:.4}");
+        if let Some(j) = &int8_json {
+            println!(
+                "int8:  MAE {:.2} ± {:.2} mm   CD {:.4} ± {:.4}   int8 vs float {:.2} mm",
+                j["mae_mean"].as_f64().unwrap_or(f64::NAN),
+                j["mae_std"].as_f64().unwrap_or(f64::NAN),
+                j["cd_mean"].as_f64().unwrap_or(f64::NAN),
+                j["cd_std"].as_f64().unwrap_or(f64::NAN),
+                j["int8_vs_float_mae"].as_f64().unwrap_or(f64::NAN),
+            );
+        }
     }
     Ok(())
 }
