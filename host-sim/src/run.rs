@@ -15,7 +15,7 @@ use epssn::model::{Model, Workspace};
 use fixed::types::U16F16;
 use serde::Serialize;
 
-use crate::aris::{ArisReader, SystemType};
+use crate::aris::ArisReader;
 use crate::metrics::{self, Metrics};
 use crate::{floatref, npy, polar, preview, reference_model, weights};
 
@@ -151,7 +151,6 @@ pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
             }
         }
     }
-    let _ = SystemType::Aris3000;
     Ok((!why.is_empty()).then(|| why.join("; ")))
 }
 
