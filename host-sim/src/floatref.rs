@@ -245,23 +245,30 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
     Ok(trace)
 }
 
-/// Maximum |x| of every activation over `traces`: the calibration the quantiser needs.
-pub fn activation_ranges(traces: &[FloatTrace]) -> crate::quantise::ActivationRanges {
-    let mut ranges = BTreeMap::new();
-    let mut note = |name: &str, v: &[f32]| {
-        let m = v.iter().fold(0f64, |m, &x| m.max(x.abs() as f64));
-        let e = ranges.entry(name.to_string()).or_insert(0f64);
-        *e = e.max(m);
-    };
+/// Range of every activation over `traces`: the `percentile`-th percentile of |x| (100 = the
+/// maximum), the calibration the quantiser needs. A percentile below 100 clips rare outliers
+/// so that the int8 grid resolves the bulk of the values.
+pub fn activation_ranges(
+    traces: &[FloatTrace],
+    percentile: f64,
+) -> crate::quantise::ActivationRanges {
+    let mut values: BTreeMap<String, Vec<f32>> = BTreeMap::new();
     for t in traces {
-        for view in &t.features {
-            for (k, v) in view {
-                note(k, v);
-            }
-        }
-        for (k, v) in &t.cost_net {
-            note(k, v);
+        let tensors = t.features.iter().flatten().chain(t.cost_net.iter());
+        for (k, v) in tensors {
+            values
+                .entry(k.clone())
+                .or_default()
+                .extend(v.iter().map(|x| x.abs()));
         }
     }
-    ranges
+    values
+        .into_iter()
+        .map(|(k, mut v)| {
+            v.sort_unstable_by(f32::total_cmp);
+            let q = (percentile.clamp(0.0, 100.0) / 100.0 * (v.len().max(1) - 1) as f64).round()
+                as usize;
+            (k, v.get(q).copied().unwrap_or(0.0) as f64)
+        })
+        .collect()
 }

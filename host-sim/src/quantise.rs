@@ -461,6 +461,9 @@ pub struct QuantiseArgs {
     /// Number of calibration inputs.
     #[arg(long, default_value_t = 32)]
     pub calibration_samples: usize,
+    /// Activation range = this percentile of |x| over the calibration inputs (100 = max).
+    #[arg(long, default_value_t = 100.0)]
+    pub percentile: f64,
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
@@ -496,7 +499,12 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 .collect::<Result<Vec<_>>>()?;
             let src = serde_json::json!({
                 "safetensors": "model.safetensors",
-                "calibration": { "data": calib.display().to_string(), "split": "train", "samples": traces.len() },
+                "calibration": {
+                    "data": calib.display().to_string(),
+                    "split": "train",
+                    "samples": traces.len(),
+                    "percentile": args.percentile,
+                },
             });
             (
                 weights,
@@ -528,7 +536,10 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         }
         _ => bail!("give --weights DIR --calib DATA, or --random-init SEED"),
     };
-    let q = quantise(&weights, &crate::floatref::activation_ranges(&traces))?;
+    let q = quantise(
+        &weights,
+        &crate::floatref::activation_ranges(&traces, args.percentile),
+    )?;
     write(&dir, &q, source)?;
     writeln!(
         out,
