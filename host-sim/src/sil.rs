@@ -116,17 +116,9 @@ fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The weight blob the firmware embeds (weights/FIRMWARE_WEIGHTS, or EPSSN_BLOB).
+/// The weight blob the firmware embeds.
 fn firmware_blob() -> Result<Vec<u8>> {
-    let root = repo_root();
-    let path = match std::env::var("EPSSN_BLOB") {
-        Ok(p) => PathBuf::from(p),
-        Err(_) => {
-            let rel = std::fs::read_to_string(root.join("weights/FIRMWARE_WEIGHTS"))
-                .context("reading weights/FIRMWARE_WEIGHTS")?;
-            root.join(rel.trim())
-        }
-    };
+    let path = crate::weights::firmware_blob_path()?;
     std::fs::read(&path).with_context(|| format!("reading weight blob {}", path.display()))
 }
 
@@ -180,42 +172,13 @@ struct HostFrame {
     expected: Option<(u32, Vec<u32>, Vec<u32>)>,
 }
 
-/// Refuses recordings whose geometry the model cannot use: the beams must cover the model's
-/// columns and the range window must cover [r_min, r_max].
+/// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
+/// run` ([`crate::run::geometry_mismatch`]).
 fn check_geometry(reader: &ArisReader) -> Result<()> {
-    let beams = reader.beam_centres_rad()?;
-    let (lo, hi) = (
-        beams.iter().copied().fold(f64::INFINITY, f64::min),
-        beams.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-    );
-    let cols = &config::INPUT_COLUMN_AZIMUTH_RAD;
-    let tol = 1e-3;
-    let ranges = reader
-        .first_frame_header()
-        .range_geometry(reader.samples_per_beam())?;
-    let (r0, r1) = (
-        ranges.start,
-        ranges.start + ranges.step * ranges.samples as f64,
-    );
-    let covers_beams = lo <= cols[0] + tol && hi >= cols[cols.len() - 1] - tol;
-    let covers_range = r0 <= config::R_MIN_M + 1e-6 && r1 >= config::R_MAX_M - 1e-6;
-    if !covers_beams || !covers_range {
+    if let Some(why) = crate::run::geometry_mismatch(reader)? {
         bail!(
-            "recording geometry does not fit the model: {:?} {} beams{}, azimuth {:.2}°…{:.2}°, \
-             range {:.3}…{:.3} m; the model ({}) needs azimuth {:.2}°…{:.2}° and range \
-             {:.3}…{:.3} m (an ARIS 3000 with 128 beams, standard lens)",
-            reader.system(),
-            reader.beams(),
-            if reader.telephoto() { " telephoto" } else { "" },
-            lo.to_degrees(),
-            hi.to_degrees(),
-            r0,
-            r1,
-            config::SPEC_NAME,
-            cols[0].to_degrees(),
-            cols[cols.len() - 1].to_degrees(),
-            config::R_MIN_M,
-            config::R_MAX_M
+            "recording geometry does not fit the model ({}): {why}",
+            config::SPEC_NAME
         );
     }
     Ok(())

@@ -10,16 +10,25 @@ use anyhow::{anyhow, bail, Context, Result};
 
 use crate::quantise::{FloatWeights, BLOB_FILE};
 
-/// The weights the firmware embeds: the folder of the blob named in `weights/FIRMWARE_WEIGHTS`.
-pub fn firmware_weights_dir() -> Result<PathBuf> {
+/// The blob the firmware embeds: `EPSSN_BLOB` if set, else the path named in
+/// `weights/FIRMWARE_WEIGHTS` (the same rule as `firmware/build.rs`).
+pub fn firmware_blob_path() -> Result<PathBuf> {
+    if let Ok(p) = std::env::var("EPSSN_BLOB") {
+        return Ok(PathBuf::from(p));
+    }
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let pointer = root.join("weights/FIRMWARE_WEIGHTS");
     let rel = std::fs::read_to_string(&pointer)
         .with_context(|| format!("reading {}", pointer.display()))?;
-    let blob = root.join(rel.trim());
+    Ok(root.join(rel.trim()))
+}
+
+/// The folder of the blob the firmware embeds.
+pub fn firmware_weights_dir() -> Result<PathBuf> {
+    let blob = firmware_blob_path()?;
     blob.parent()
         .map(Path::to_path_buf)
-        .ok_or_else(|| anyhow!("{} names no folder", pointer.display()))
+        .ok_or_else(|| anyhow!("{} names no folder", blob.display()))
 }
 
 /// A loaded weights folder.
