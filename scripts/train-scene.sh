@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Reproduces one scene's trained and quantised weights in weights/<scene>/ and its held-out table.
 #   bash scripts/train-scene.sh SCENE TRAIN_SAMPLES TEST_SAMPLES EPOCHS [TEST_VIEWS] [DATA_ROOT]
+# HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
 # Data are simulated with seed 1 into DATA_ROOT/<scene>/{train,test}; training never sees test/,
 # calibration uses 32 training samples. Re-running with the same arguments gives the same weights
 # (burn's flex backend is deterministic); an interrupted training continues with --resume.
 set -euo pipefail
 scene=$1 train_n=$2 test_n=$3 epochs=$4 test_views=${5:-2} root=${6:-/tmp/epssn-data}
 data=$root/$scene
-hs=(cargo run --release -q -p host-sim --)
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 cd "$(dirname "$0")/.."
 [ -d "$data/train/$(printf %06d $((train_n - 1)))" ] ||
   "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$data" --no-preview
