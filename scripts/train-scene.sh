@@ -3,7 +3,7 @@
 #   bash scripts/train-scene.sh SCENE TRAIN_SAMPLES TEST_SAMPLES EPOCHS [TEST_VIEWS] [DATA_ROOT]
 # HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
 # Data are simulated with seed 1 into DATA_ROOT/<scene>/{train,test}; training never sees test/,
-# calibration uses 32 training samples. Re-running with the same arguments gives the same weights
+# calibration uses 64 training samples. Re-running with the same arguments gives the same weights
 # (burn's flex backend is deterministic); an interrupted training continues with --resume.
 set -euo pipefail
 scene=$1 train_n=$2 test_n=$3 epochs=$4 test_views=${5:-2} root=${6:-/tmp/epssn-data}
@@ -18,7 +18,8 @@ cd "$(dirname "$0")/.."
 resume=()
 [ -d "weights/$scene/checkpoint" ] && resume=(--resume)
 "${hs[@]}" train --scene "$scene" --data "$data" --epochs "$epochs" --batch 16 --seed 1 "${resume[@]}"
-"${hs[@]}" quantise --weights "weights/$scene" --calib "$data" --calibration-samples 32 --percentile 99.99
+"${hs[@]}" quantise --weights "weights/$scene" --calib "$data" --calibration-samples 64 --percentile 99.99 \
+  --search --search-passes 2
 for v in $(seq 1 "$test_views"); do
   "${hs[@]}" eval --weights "weights/$scene" --data "$data" --views "$v" --json \
     $([ "$v" -ge 2 ] && echo --int8) >"weights/$scene/eval-views$v.json"

@@ -18,7 +18,7 @@ fn quantised_blob(seed: u64) -> Vec<u8> {
             floatref::run(&weights, &[&a, &b]).unwrap()
         })
         .collect();
-    let ranges = floatref::activation_ranges(&calib, 100.0);
+    let ranges = host_sim::calibration::SortedMagnitudes::new(&calib).ranges(100.0);
     quantise::quantise(&weights, &ranges).unwrap().blob
 }
 

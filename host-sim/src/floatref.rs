@@ -148,9 +148,12 @@ pub fn warp(
     out
 }
 
-/// Runs the float network on u8 polar images (`views[0]` the reference).
-pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
-    let folded: Vec<(Vec<f64>, Vec<f64>)> = LAYERS
+/// Every layer's weights and biases with batch norm folded in, in `LAYERS` order.
+pub type FoldedWeights = Vec<(Vec<f64>, Vec<f64>)>;
+
+/// Folds batch norm into every layer of `weights`.
+pub fn fold_all(weights: &FloatWeights) -> Result<FoldedWeights> {
+    LAYERS
         .iter()
         .map(|l| {
             let fl = weights
@@ -158,7 +161,29 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
                 .ok_or_else(|| anyhow!("no float layer {}", l.name))?;
             Ok(fold_batch_norm(fl, &WeightLayout::of(l)))
         })
-        .collect::<Result<_>>()?;
+        .collect()
+}
+
+/// Runs the float network on u8 polar images (`views[0]` the reference).
+pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
+    run_folded(&fold_all(weights)?, views, &mut |_, _| {})
+}
+
+/// The float network on folded weights; `hook(name, tensor)` may change every activation as it
+/// is produced (`f0`…`f3` per view after ReLU, `cost`, each cost-net output after its skip
+/// addition, `head`): `host-sim qdiag` rounds chosen tensors to their int8 grid with it.
+pub fn run_folded(
+    folded: &FoldedWeights,
+    views: &[&[u8]],
+    hook: &mut dyn FnMut(&str, &mut [f32]),
+) -> Result<FloatTrace> {
+    if folded.len() != LAYERS.len() {
+        return Err(anyhow!(
+            "{} folded layers, the spec has {}",
+            folded.len(),
+            LAYERS.len()
+        ));
+    }
     let nf = LAYERS
         .iter()
         .take_while(|l| l.kind == LayerKind::Conv2d)
@@ -168,11 +193,12 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
     for image in views {
         let mut x: Vec<f32> = image.iter().map(|&u| u as f32 / 255.0).collect();
         let mut map = BTreeMap::new();
-        for (l, (w, b)) in LAYERS.iter().zip(&folded).take(nf) {
+        for (l, (w, b)) in LAYERS.iter().zip(folded).take(nf) {
             x = conv(l, &x, w, b);
             if l.relu {
                 x.iter_mut().for_each(|v| *v = v.max(0.0));
             }
+            hook(l.name, &mut x);
             map.insert(l.name.to_string(), x.clone());
         }
         feats.push(x);
@@ -204,9 +230,10 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
             }
         }
     }
+    hook("cost", &mut cost);
     trace.cost_net.insert("cost".into(), cost.clone());
     let mut x = cost;
-    for (l, (wt, b)) in LAYERS.iter().zip(&folded).skip(nf) {
+    for (l, (wt, b)) in LAYERS.iter().zip(folded).skip(nf) {
         x = match l.kind {
             LayerKind::Conv3d => conv(l, &x, wt, b),
             _ => conv_transpose(l, &x, wt, b),
@@ -221,6 +248,7 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
                 .ok_or_else(|| anyhow!("skip {skip} missing"))?;
             x.iter_mut().zip(s).for_each(|(a, b)| *a += b);
         }
+        hook(l.name, &mut x);
         trace.cost_net.insert(l.name.to_string(), x.clone());
     }
     let (e, r, a) = (
@@ -243,32 +271,4 @@ pub fn run(weights: &FloatWeights, views: &[&[u8]]) -> Result<FloatTrace> {
         }
     }
     Ok(trace)
-}
-
-/// Range of every activation over `traces`: the `percentile`-th percentile of |x| (100 = the
-/// maximum), the calibration the quantiser needs. A percentile below 100 clips rare outliers
-/// so that the int8 grid resolves the bulk of the values.
-pub fn activation_ranges(
-    traces: &[FloatTrace],
-    percentile: f64,
-) -> crate::quantise::ActivationRanges {
-    let mut values: BTreeMap<String, Vec<f32>> = BTreeMap::new();
-    for t in traces {
-        let tensors = t.features.iter().flatten().chain(t.cost_net.iter());
-        for (k, v) in tensors {
-            values
-                .entry(k.clone())
-                .or_default()
-                .extend(v.iter().map(|x| x.abs()));
-        }
-    }
-    values
-        .into_iter()
-        .map(|(k, mut v)| {
-            v.sort_unstable_by(f32::total_cmp);
-            let q = (percentile.clamp(0.0, 100.0) / 100.0 * (v.len().max(1) - 1) as f64).round()
-                as usize;
-            (k, v.get(q).copied().unwrap_or(0.0) as f64)
-        })
-        .collect()
 }

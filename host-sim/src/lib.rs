@@ -6,6 +6,7 @@
 pub mod aris;
 pub mod beams;
 pub mod bench;
+pub mod calibration;
 pub mod dataset;
 pub mod floatref;
 pub mod groundtruth;
@@ -16,6 +17,7 @@ pub mod model;
 pub mod npy;
 pub mod polar;
 pub mod preview;
+pub mod qdiag;
 pub mod quantise;
 pub mod reference_model;
 pub mod render;

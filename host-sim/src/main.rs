@@ -17,6 +17,8 @@ enum Command {
     Inspect(host_sim::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
     Quantise(host_sim::quantise::QuantiseArgs),
+    /// Where the int8 model loses accuracy: each tensor rounded alone, and all but it.
+    Qdiag(host_sim::qdiag::QdiagArgs),
     /// The main job: pair a recording's frames by roll, run the int8 library and the float
     /// model, check bit-exactness, score against ground truth, write PNG and PLY.
     Run(host_sim::run::RunArgs),
@@ -43,6 +45,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
         Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
+        Command::Qdiag(args) => host_sim::qdiag::run(&args),
         Command::Run(args) => host_sim::run::run(&args, &mut stdout.lock()),
         Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
         Command::Simulate(args) => host_sim::simulate::run(&args),

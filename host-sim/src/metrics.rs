@@ -43,6 +43,17 @@ pub struct Metrics {
     pub pixels: usize,
 }
 
+/// Mean and (population) standard deviation of per-sample figures, as the paper reports them;
+/// `None` for no values.
+pub fn mean_std(v: &[f64]) -> (Option<f64>, Option<f64>) {
+    if v.is_empty() {
+        return (None, None);
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    let s = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt();
+    (Some(m), Some(s))
+}
+
 /// `β / n · Σ |a − b|` over the pixels where `mask` is set (all pixels without a mask).
 /// NaN when no pixel counts.
 pub fn mae(pred: &[f32], gt: &[f32], mask: Option<&[bool]>) -> Result<f64> {

@@ -14,6 +14,8 @@ use epssn::config::{self, LayerKind, LayerShape, LAYERS};
 use epssn::requant::Requant;
 use serde::Serialize;
 
+use crate::calibration::{search, CalibSample, SortedMagnitudes};
+
 /// Batch-norm statistics and affine parameters of one layer.
 #[derive(Clone, Debug)]
 pub struct BatchNorm {
@@ -464,15 +466,26 @@ pub struct QuantiseArgs {
     /// Activation range = this percentile of |x| over the calibration inputs (100 = max).
     #[arg(long, default_value_t = 100.0)]
     pub percentile: f64,
+    /// Choose each tensor's percentile by scoring candidate blobs with the int8 library on the
+    /// calibration samples (`--percentile` is the starting point); see `calibration.rs`.
+    #[arg(long, requires = "weights")]
+    pub search: bool,
+    /// Sweeps of the per-tensor search.
+    #[arg(long, default_value_t = 1)]
+    pub search_passes: usize,
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
 }
 
+/// Candidate percentiles of the per-tensor search.
+pub const SEARCH_PERCENTILES: [f64; 9] =
+    [100.0, 99.999, 99.99, 99.95, 99.9, 99.5, 99.0, 98.0, 95.0];
+
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
     let n = args.calibration_samples.max(1);
-    let (weights, traces, source, dir) = match (&args.weights, args.random_init) {
+    let (weights, traces, samples, mut source, dir) = match (&args.weights, args.random_init) {
         (Some(dir), None) => {
             let weights =
                 crate::safetensors_io::load_float_weights(&dir.join("model.safetensors"))?;
@@ -492,11 +505,19 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 .take(n)
                 .map(|d| {
                     let s = crate::dataset::Sample::load(d)?;
-                    let views = s.polar_views_u8();
+                    let mut views = s.polar_views_u8();
+                    views.truncate(config::VIEWS);
                     let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
-                    crate::floatref::run(&weights, &refs[..config::VIEWS.min(refs.len())])
+                    let trace = crate::floatref::run(&weights, &refs)?;
+                    let sample = CalibSample {
+                        mask: s.mask.iter().map(|&m| m > 0.5).collect(),
+                        float_depth: trace.depth.clone(),
+                        views,
+                    };
+                    Ok((trace, sample))
                 })
                 .collect::<Result<Vec<_>>>()?;
+            let (traces, samples): (Vec<_>, Vec<_>) = traces.into_iter().unzip();
             let src = serde_json::json!({
                 "safetensors": "model.safetensors",
                 "calibration": {
@@ -509,6 +530,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
             (
                 weights,
                 traces,
+                samples,
                 src,
                 args.out.clone().unwrap_or_else(|| dir.clone()),
             )
@@ -530,16 +552,36 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
             (
                 weights,
                 traces,
+                Vec::new(),
                 serde_json::json!({ "random_init": seed }),
                 dir,
             )
         }
         _ => bail!("give --weights DIR --calib DATA, or --random-init SEED"),
     };
-    let q = quantise(
-        &weights,
-        &crate::floatref::activation_ranges(&traces, args.percentile),
-    )?;
+    let magnitudes = SortedMagnitudes::new(&traces);
+    let (ranges, search) = if args.search {
+        let (r, s) = search(
+            &weights,
+            &magnitudes,
+            &samples,
+            args.percentile,
+            &SEARCH_PERCENTILES,
+            args.search_passes,
+        )?;
+        writeln!(
+            out,
+            "per-tensor search: {} blobs scored; calibration |int8 − float| {:.2} → {:.2} mm",
+            s.evaluations, s.start_mm, s.final_mm
+        )?;
+        (r, Some(s))
+    } else {
+        (magnitudes.ranges(args.percentile), None)
+    };
+    let q = quantise(&weights, &ranges)?;
+    if let (Some(s), serde_json::Value::Object(m)) = (&search, &mut source) {
+        m.insert("search".into(), serde_json::to_value(s)?);
+    }
     write(&dir, &q, source)?;
     writeln!(
         out,

@@ -187,23 +187,14 @@ pub fn pair_by_roll(rolls: &[Option<f64>], views: usize) -> Vec<Vec<usize>> {
     out
 }
 
-fn mean_std(v: &[f64]) -> (Option<f64>, Option<f64>) {
-    if v.is_empty() {
-        return (None, None);
-    }
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    let s = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt();
-    (Some(m), Some(s))
-}
-
 fn accuracy(ms: &[&Metrics]) -> Accuracy {
-    let (mae, mae_std) = mean_std(
+    let (mae, mae_std) = crate::metrics::mean_std(
         &ms.iter()
             .map(|m| m.mae)
             .filter(|x| x.is_finite())
             .collect::<Vec<_>>(),
     );
-    let (cd, cd_std) = mean_std(
+    let (cd, cd_std) = crate::metrics::mean_std(
         &ms.iter()
             .map(|m| m.cd)
             .filter(|x| x.is_finite())

@@ -381,16 +381,14 @@ fn process_cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-fn mean_std(v: &[f64]) -> (f64, f64) {
-    let n = v.len().max(1) as f64;
-    let m = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n;
-    (m, var.sqrt())
+/// Mean and standard deviation as numbers (NaN for no values: JSON null, a table's NaN).
+fn nan_if_none((m, s): (Option<f64>, Option<f64>)) -> (f64, f64) {
+    (m.unwrap_or(f64::NAN), s.unwrap_or(f64::NAN))
 }
 
 /// The int8 library's depth map (metres) for one sample's views; one view is fed as its own
 /// source, as the float model's single-view ablation does.
-fn int8_depth(
+pub fn int8_depth(
     model: &epssn::model::Model<'_>,
     views: &[Vec<u8>],
     ws: &mut epssn::model::Workspace,
@@ -429,7 +427,8 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     let set = load_dir(&dir, views, st.input_size(), st.output_size(), args.limit)?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
     let (mut mae, mut cd) = (Vec::new(), Vec::new());
-    let (mut q_mae, mut q_cd, mut q_diff) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut q_mae, mut q_cd, mut q_diff, mut q_diff_mask) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let blob = if args.int8 {
         std::fs::read(args.weights.join(crate::quantise::BLOB_FILE))
             .with_context(|| format!("reading the int8 blob in {}", args.weights.display()))?
@@ -460,6 +459,17 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
                 }
                 let diff: f64 = dq.iter().zip(&d).map(|(a, b)| (a - b).abs() as f64).sum();
                 q_diff.push(1000.0 * diff / dq.len() as f64);
+                let (sum, n) = dq
+                    .iter()
+                    .zip(&d)
+                    .zip(&mask)
+                    .filter(|(_, &m)| m)
+                    .fold((0f64, 0usize), |(s, n), ((a, b), _)| {
+                        (s + (a - b).abs() as f64, n + 1)
+                    });
+                if n > 0 {
+                    q_diff_mask.push(1000.0 * sum / n as f64);
+                }
             }
             // The paper's MAE and CD over its mask (host_sim::metrics documents the reading).
             let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
@@ -472,13 +482,17 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             }
         }
     }
-    let (m, sd) = mean_std(&mae);
-    let (c, csd) = mean_std(&cd);
+    let (m, sd) = nan_if_none(crate::metrics::mean_std(&mae));
+    let (c, csd) = nan_if_none(crate::metrics::mean_std(&cd));
     let int8_json = args.int8.then(|| {
-        let (qm, qsd) = mean_std(&q_mae);
-        let (qc, qcsd) = mean_std(&q_cd);
-        let (dm, _) = mean_std(&q_diff);
-        serde_json::json!({ "mae_mean": qm, "mae_std": qsd, "cd_mean": qc, "cd_std": qcsd, "int8_vs_float_mae": dm })
+        let (qm, qsd) = nan_if_none(crate::metrics::mean_std(&q_mae));
+        let (qc, qcsd) = nan_if_none(crate::metrics::mean_std(&q_cd));
+        let (dm, _) = nan_if_none(crate::metrics::mean_std(&q_diff));
+        let (dmm, _) = nan_if_none(crate::metrics::mean_std(&q_diff_mask));
+        serde_json::json!({
+            "mae_mean": qm, "mae_std": qsd, "cd_mean": qc, "cd_std": qcsd,
+            "int8_vs_float_mae": dm, "int8_vs_float_mae_mask": dmm,
+        })
     });
     if args.json {
         let j = serde_json::json!({
@@ -503,12 +517,14 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         println!("float: MAE {m:.2} ± {sd:.2} mm   CD {c:.4} ± {csd:.4}");
         if let Some(j) = &int8_json {
             println!(
-                "int8:  MAE {:.2} ± {:.2} mm   CD {:.4} ± {:.4}   int8 vs float {:.2} mm",
+                "int8:  MAE {:.2} ± {:.2} mm   CD {:.4} ± {:.4}   int8 vs float {:.2} mm \
+                 ({:.2} mm on the mask)",
                 j["mae_mean"].as_f64().unwrap_or(f64::NAN),
                 j["mae_std"].as_f64().unwrap_or(f64::NAN),
                 j["cd_mean"].as_f64().unwrap_or(f64::NAN),
                 j["cd_std"].as_f64().unwrap_or(f64::NAN),
                 j["int8_vs_float_mae"].as_f64().unwrap_or(f64::NAN),
+                j["int8_vs_float_mae_mask"].as_f64().unwrap_or(f64::NAN),
             );
         }
     }
