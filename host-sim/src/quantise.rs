@@ -8,7 +8,7 @@
 
 use std::collections::BTreeMap;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, ensure, Context, Result};
 use epssn::blob::{write_blob, Dtype};
 use epssn::config::{self, LayerKind, LayerShape, LAYERS};
 use epssn::requant::Requant;
@@ -482,6 +482,22 @@ pub struct QuantiseArgs {
 pub const SEARCH_PERCENTILES: [f64; 9] =
     [100.0, 99.999, 99.99, 99.95, 99.9, 99.5, 99.0, 98.0, 95.0];
 
+/// Views a trained model was trained with (`views` in its `manifest.json`; the spec's without
+/// one), so that calibration sees the variance statistics the model will run on.
+pub fn trained_views(dir: &std::path::Path) -> Result<usize> {
+    let path = dir.join("manifest.json");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(config::VIEWS);
+    };
+    let j: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    match j.get("views").and_then(|v| v.as_u64()) {
+        Some(v @ 2..=3) => Ok(v as usize),
+        Some(v) => bail!("{}: views {v}, the int8 model runs 2 or 3", path.display()),
+        None => Ok(config::VIEWS),
+    }
+}
+
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
     let n = args.calibration_samples.max(1);
@@ -493,6 +509,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 .calib
                 .as_ref()
                 .ok_or_else(|| anyhow!("--calib DATA (training split) is needed with --weights"))?;
+            let views_n = trained_views(dir)?;
             let samples = crate::dataset::sample_dirs(calib, crate::scene::Split::Train)?;
             if samples.is_empty() {
                 bail!("no training samples under {}", calib.display());
@@ -506,7 +523,13 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 .map(|d| {
                     let s = crate::dataset::Sample::load(d)?;
                     let mut views = s.polar_views_u8();
-                    views.truncate(config::VIEWS);
+                    ensure!(
+                        views.len() >= views_n,
+                        "{}: {} views, the model was trained on {views_n}",
+                        d.display(),
+                        views.len()
+                    );
+                    views.truncate(views_n);
                     let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
                     let trace = crate::floatref::run(&weights, &refs)?;
                     let sample = CalibSample {

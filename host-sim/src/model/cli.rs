@@ -299,12 +299,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     save_safetensors(&out.join(WEIGHTS_FILE), &trainer.tensors(), meta)?;
     std::fs::write(out.join(SPEC_FILE), &spec_bytes)?;
     write_curves(&out, &state.history)?;
-    let data_manifest = ["manifest.json", "dataset.json"]
-        .iter()
-        .map(|f| args.data.join(f))
-        .find(|p| p.is_file())
-        .and_then(|p| std::fs::read(p).ok())
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+    let data_manifest = serde_json::json!({
+        "train": data_summary(&train_dir),
+        "val": split_dir(&args.data, "val").as_deref().map(data_summary),
+    });
     let last = state.history.last();
     let manifest = serde_json::json!({
         "scene": args.scene,
@@ -312,7 +310,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         "spec_file": args.spec.display().to_string(),
         "spec_crc32": format!("0x{:08x}", epssn::crc32::crc32(&spec_bytes)),
         "data_dir": args.data.display().to_string(),
-        "data_manifest": data_manifest,
+        "data": data_manifest,
         "train_samples": n,
         "val_samples": val_set.len(),
         "views": views,
@@ -379,6 +377,34 @@ fn process_cpu_seconds() -> Option<f64> {
     let f: Vec<&str> = rest.split_whitespace().collect();
     let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
     Some(ticks / 100.0)
+}
+
+/// What a simulated split holds, from its samples' `scene.json`: scene kinds, dataset seeds,
+/// sample count and views per sample (the record a trained model keeps of its data).
+pub fn data_summary(dir: &Path) -> serde_json::Value {
+    let mut kinds = std::collections::BTreeSet::new();
+    let mut seeds = std::collections::BTreeSet::new();
+    let mut views = std::collections::BTreeSet::new();
+    let mut samples = 0usize;
+    for d in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let Ok(text) = std::fs::read_to_string(d.path().join("scene.json")) else {
+            continue;
+        };
+        let Ok(j) = serde_json::from_str::<serde_json::Value>(&text) else {
+            continue;
+        };
+        samples += 1;
+        kinds.insert(j["kind"].as_str().unwrap_or("?").to_string());
+        seeds.insert(j["seed"].as_u64().unwrap_or(u64::MAX));
+        views.insert(j["view_rolls_deg"].as_array().map_or(0, |v| v.len()));
+    }
+    serde_json::json!({
+        "dir": dir.display().to_string(),
+        "scenes": kinds,
+        "seeds": seeds,
+        "samples": samples,
+        "views": views,
+    })
 }
 
 /// Mean and standard deviation as numbers (NaN for no values: JSON null, a table's NaN).
