@@ -60,7 +60,10 @@ pub fn conv3d_s8_plain(
     Ok(())
 }
 
-/// Optimised. When the taps of one output (`I · kd · kh · kw`) fit [`COL_LEN`], the inputs
+/// Optimised. Layers that fit its stack buffers run the line-buffer engine (the `line`
+/// module: each output row's inputs gathered once, windows shared by neighbouring
+/// positions, 2 channels × 2 positions per inner loop, fast requantisation). Otherwise,
+/// when the taps of one output (`I · kd · kh · kw`) fit [`COL_LEN`], the inputs
 /// of two output positions are gathered once into i16 columns on the stack (offset added,
 /// padding 0; CMSIS-NN's im2col), packed two per word, and every output channel's
 /// contiguous weights `[K]` run one dot product over both positions, so each weight load
@@ -73,8 +76,10 @@ pub fn conv3d_s8(
     params: &ConvParams<'_>,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    check_conv(shape, input.len(), params, output.len())?;
-    if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
+    let bound = check_conv(shape, input.len(), params, output.len())?;
+    if super::line::conv_fits(shape) {
+        super::line::run_conv(shape, input, params, bound, output);
+    } else if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
         im2col_engine(shape, input, params, output);
     } else {
         rows_engine(shape, input, params, output);

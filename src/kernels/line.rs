@@ -1,0 +1,485 @@
+//! Line-buffer engine shared by the forward and transposed convolutions.
+//!
+//! For one output row (fixed plane and row of a forward convolution, or of one output phase
+//! of a transposed one) the engine gathers, once, every input value the row reads into a
+//! line buffer laid out `[column][v]`, where `v` runs over (input channel, plane tap, row
+//! tap). The taps of one output position are then one contiguous window of the buffer
+//! (`kw` consecutive columns), and the windows of neighbouring positions overlap instead of
+//! being copied per position (im2col). The weights are reordered once per call (per phase)
+//! to `[O][column tap][v]`, so every output is a dot product of two contiguous arrays.
+//!
+//! The inner loop computes 2 output channels × 2 positions at once
+//! ([`crate::dsp::dot2x2`]): the line holds i16 values (offset added, 0 at padding) two
+//! per word, the weights are expanded once to i16 pairs with the two channels' words
+//! interleaved, so per 2 taps one load of each position's word, one `LDRD` of the weights
+//! and 4 `SMLAD` give 8 MACs. `v` is padded with zeros (and zero weights) to a multiple of
+//! 4 so every window is an even number of words.
+//!
+//! Requantisation uses [`FastRequant`] when the layer's worst-case accumulator allows it
+//! (always, for the EPSSN layers), else the exact [`Requant`] path, and a skip add reads a
+//! 256-entry table of `MBQM(q_skip)`.
+
+use super::{ConvParams, ConvShape, Skip};
+use crate::dsp::dot2x2;
+use crate::requant::{Apply, FastRequant, Requant};
+
+/// Words (two i16 entries each) of the line buffer.
+pub const LINE_WORDS: usize = 1024;
+/// Words (two i16 weights each) of the reordered weights of one call or phase.
+pub const WEIGHT_WORDS: usize = 1024;
+/// Most line entries per column (`v`, padded to a multiple of 4).
+pub const MAX_V: usize = 256;
+/// Most output channels with prepared [`FastRequant`]s.
+pub const MAX_FAST_CHANNELS: usize = 32;
+
+/// The i16 slot (in the buffer viewed as i16, native order) of entry `k`: entries `2j`,
+/// `2j + 1` share word `j`, the even one in the low half (as [`crate::dsp::pack`]).
+#[inline(always)]
+const fn slot(k: usize) -> usize {
+    if cfg!(target_endian = "little") {
+        k
+    } else {
+        k ^ 1
+    }
+}
+
+/// `x` rounded up to a multiple of 4.
+#[inline(always)]
+pub(crate) const fn up4(x: usize) -> usize {
+    x.div_ceil(4) * 4
+}
+
+/// Prepared requantisations of `params` when every channel fits the fast path for the
+/// layer's worst-case accumulator `bound`.
+pub(crate) fn fast_requants(
+    requant: &[Requant],
+    bound: i64,
+) -> Option<[FastRequant; MAX_FAST_CHANNELS]> {
+    if requant.len() > MAX_FAST_CHANNELS || !requant.iter().all(|r| r.fits_fast(bound)) {
+        return None;
+    }
+    let mut f = [FastRequant::default(); MAX_FAST_CHANNELS];
+    for (f, &r) in f.iter_mut().zip(requant) {
+        *f = FastRequant::new(r);
+    }
+    Some(f)
+}
+
+/// The skip operand, with `MBQM(q_skip)` tabulated over the 256 int8 values.
+#[derive(Clone, Copy)]
+pub(crate) enum SkipLut<'a> {
+    None,
+    Separate(&'a [i8], &'a [i32; 256]),
+    InPlace(&'a [i32; 256]),
+}
+
+/// `MBQM(q, skip multiplier)` for every int8 `q` (index `q as u8`).
+pub(crate) fn skip_table(skip: &Skip<'_>) -> Option<[i32; 256]> {
+    let rq = match *skip {
+        Skip::None => return None,
+        Skip::Separate { requant, .. } | Skip::InPlace { requant } => requant,
+    };
+    Some(core::array::from_fn(|u| rq.apply(u as u8 as i8 as i32)))
+}
+
+pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> SkipLut<'a> {
+    match (skip, table) {
+        (Skip::Separate { skip, .. }, Some(t)) => SkipLut::Separate(skip, t),
+        (Skip::InPlace { .. }, Some(t)) => SkipLut::InPlace(t),
+        _ => SkipLut::None,
+    }
+}
+
+/// `t` → output: ReLU, skip add (table), int8 clamp; as [`super::finish`].
+#[inline(always)]
+fn store(out: &mut [i8], idx: usize, t: i32, relu: bool, skip: SkipLut<'_>) {
+    let t = if relu { t.max(0) } else { t };
+    let y = match skip {
+        SkipLut::None => t,
+        SkipLut::Separate(s, lut) => t.saturating_add(lut[s[idx] as u8 as usize]),
+        SkipLut::InPlace(lut) => t.saturating_add(lut[out[idx] as u8 as usize]),
+    };
+    out[idx] = y.clamp(-128, 127) as i8;
+}
+
+/// Where a row's outputs go: output `(o, q)` at `o · plane + base + q · step`.
+#[derive(Clone, Copy)]
+pub(crate) struct RowOut {
+    pub plane: usize,
+    pub base: usize,
+    pub step: usize,
+}
+
+/// The packed-line geometry of one row: position `q` reads words
+/// `line[q · step .. q · step + words]`, dotted with `words / 2` weight words per channel.
+#[derive(Clone, Copy)]
+pub(crate) struct RowIn {
+    pub positions: usize,
+    pub step: usize,
+    pub words: usize,
+}
+
+/// One row of outputs for all channels: 2 channels × 2 positions per inner loop
+/// ([`crate::dsp::dot2x2`]). `weights` holds, per channel pair, the two channels' words
+/// interleaved (`rin.words` words per channel; an odd last channel is paired with itself).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn row<R: Apply>(
+    line: &[u32],
+    rin: RowIn,
+    weights: &[u32],
+    bias: &[i32],
+    rq: &[R],
+    relu: bool,
+    skip: SkipLut<'_>,
+    out: &mut [i8],
+    rout: RowOut,
+) {
+    let n = rin.words;
+    let step = if n == 0 { 0 } else { rin.step };
+    let oc = bias.len().min(rq.len());
+    let at = |o: usize, q: usize| o * rout.plane + rout.base + q * rout.step;
+    let mut o = 0;
+    while o < oc {
+        let two = o + 1 < oc;
+        let w = &weights[o * n..(o + 2) * n];
+        let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
+        let mut q = 0;
+        while q < rin.positions {
+            let pair = q + 1 < rin.positions;
+            let x = &line[q * step..];
+            // The unpaired last position reuses its own window as the second one.
+            let acc = dot2x2(x, if pair { step } else { 0 }, w, n, [b0, b0, b1, b1]);
+            let [a00, a01, a10, a11] = acc;
+            store(out, at(o, q), rq[o].apply(a00), relu, skip);
+            if pair {
+                store(out, at(o, q + 1), rq[o].apply(a01), relu, skip);
+            }
+            if two {
+                store(out, at(o + 1, q), rq[o + 1].apply(a10), relu, skip);
+                if pair {
+                    store(out, at(o + 1, q + 1), rq[o + 1].apply(a11), relu, skip);
+                }
+            }
+            q += 2;
+        }
+        o += 2;
+    }
+}
+
+/// Two i16 weights as one word, `a` in the low half.
+#[inline(always)]
+fn word(a: i8, b: i8) -> u32 {
+    crate::dsp::pack(a as i16, b as i16)
+}
+
+/// Index of word `k` of channel `o` in the pair-interleaved weight buffer (`n` words per
+/// channel).
+#[inline(always)]
+fn wslot(o: usize, k: usize, n: usize) -> usize {
+    (o / 2) * 2 * n + 2 * k + o % 2
+}
+
+/// Pads an odd channel count's last pair by copying the last channel's words.
+fn pad_pairs(wbuf: &mut [u32], oc: usize, n: usize) {
+    if oc % 2 == 1 {
+        for k in 0..n {
+            wbuf[wslot(oc, k, n)] = wbuf[wslot(oc - 1, k, n)];
+        }
+    }
+}
+
+/// Views the line buffer as i16 slots (native order, see [`slot`]).
+#[inline(always)]
+fn slots(line: &mut [u32]) -> &mut [i16] {
+    bytemuck::cast_slice_mut(line)
+}
+
+/// Fills the line: for each `v` in `0..vp`, `src(v)` is the input offset of the row that
+/// entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
+/// column `in0` on, the other columns are 0 (padding).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn fill(
+    line: &mut [u32],
+    vp: usize,
+    cols: usize,
+    (lo, hi, in0): (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    src: impl Fn(usize) -> Option<usize>,
+) {
+    let s = slots(&mut line[..vp * cols / 2]);
+    for v in 0..vp {
+        let sv = slot(v);
+        match src(v) {
+            Some(base) if lo < hi => {
+                for c in 0..lo {
+                    s[c * vp + sv] = 0;
+                }
+                let row = &input[base + in0..base + in0 + (hi - lo)];
+                for (c, &x) in (lo..hi).zip(row) {
+                    s[c * vp + sv] = x as i16 + off;
+                }
+                for c in hi..cols {
+                    s[c * vp + sv] = 0;
+                }
+            }
+            _ => {
+                for c in 0..cols {
+                    s[c * vp + sv] = 0;
+                }
+            }
+        }
+    }
+}
+
+/// Whether the forward convolution fits the engine's buffers.
+pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
+    let [kd, kh, kw] = shape.kernel;
+    let vp = up4(shape.in_channels * kd * kh);
+    let cols = (shape.out_size[2] - 1) * shape.stride[2] + kw;
+    vp <= MAX_V
+        && vp * cols / 2 <= LINE_WORDS
+        && shape.out_channels.div_ceil(2) * 2 * kw * vp / 2 <= WEIGHT_WORDS
+        && shape.out_channels <= MAX_FAST_CHANNELS
+}
+
+/// Forward convolution (validated shape that [`conv_fits`]), requantising with `rq`.
+pub(crate) fn conv<R: Apply>(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    rq: &[R],
+    output: &mut [i8],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [od, oh, ow] = shape.out_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [pd, ph, pw] = shape.padding;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let v_len = ic * kd * kh;
+    let vp = up4(v_len);
+    let cols = (ow - 1) * sw + kw;
+    // Line column c reads input column c − pw.
+    let (lo, hi) = (pw.min(cols), (iw + pw).min(cols));
+    let span = (lo, hi, lo.saturating_sub(pw));
+    let off = params.input_offset as i16;
+    // Weights [O][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
+    let mut wbuf = [0u32; WEIGHT_WORDS];
+    let n = kw * vp / 2;
+    let wv = |o: usize, kx: usize, v: usize| {
+        if v < v_len {
+            params.weights[(o * v_len + v) * kw + kx]
+        } else {
+            0
+        }
+    };
+    for o in 0..oc {
+        for kx in 0..kw {
+            for j in 0..vp / 2 {
+                let k = kx * vp / 2 + j;
+                wbuf[wslot(o, k, n)] = word(wv(o, kx, 2 * j), wv(o, kx, 2 * j + 1));
+            }
+        }
+    }
+    pad_pairs(&mut wbuf, oc, n);
+    let mut line = [0u32; LINE_WORDS];
+    let out_plane = od * oh * ow;
+    let rin = RowIn {
+        positions: ow,
+        step: sw * vp / 2,
+        words: kw * vp / 2,
+    };
+    for z in 0..od {
+        for y in 0..oh {
+            fill(&mut line, vp, cols, span, input, off, |v| {
+                if v >= v_len {
+                    return None;
+                }
+                let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
+                let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
+                let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
+                Some(((i * id + iz) * ih + iy) * iw)
+            });
+            row(
+                &line,
+                rin,
+                &wbuf[..oc.div_ceil(2) * 2 * n],
+                params.bias,
+                rq,
+                params.relu,
+                SkipLut::None,
+                output,
+                RowOut {
+                    plane: out_plane,
+                    base: (z * oh + y) * ow,
+                    step: 1,
+                },
+            );
+        }
+    }
+}
+
+/// [`conv`] with the fast requantisation when the worst-case accumulator `bound` allows it.
+pub(crate) fn run_conv(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    bound: i64,
+    output: &mut [i8],
+) {
+    let oc = shape.out_channels;
+    match fast_requants(params.requant, bound) {
+        Some(f) => conv(shape, input, params, &f[..oc], output),
+        None => conv(shape, input, params, params.requant, output),
+    }
+}
+
+/// Taps of phase `f` on an axis with kernel `k`, stride `s`: `k = f + t·s`, `t < count`.
+#[inline(always)]
+pub(crate) fn phase_taps(k: usize, s: usize, f: usize) -> usize {
+    if f >= k {
+        0
+    } else {
+        (k - f).div_ceil(s)
+    }
+}
+
+/// Whether the transposed convolution fits the engine's buffers (phase 0 is the largest).
+pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
+    let t = |a: usize| shape.kernel[a].div_ceil(shape.stride[a]);
+    let vp = up4(shape.in_channels * t(0) * t(1));
+    let cols = shape.out_size[2].div_ceil(shape.stride[2]) + t(2);
+    vp <= MAX_V
+        && vp * cols / 2 <= LINE_WORDS
+        && shape.out_channels.div_ceil(2) * 2 * t(2) * vp / 2 <= WEIGHT_WORDS
+        && shape.out_channels <= MAX_FAST_CHANNELS
+}
+
+/// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
+/// phase by phase: outputs with the same `(z + pad) mod stride` on every axis use the same
+/// taps, and along a row of one phase output `bx` reads input columns `bx − c`, a window
+/// of the line buffer like a forward convolution's.
+pub(crate) fn transposed<R: Apply>(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    rq: &[R],
+    skip: SkipLut<'_>,
+    output: &mut [i8],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [od, oh, ow] = shape.out_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [pd, ph, pw] = shape.padding;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let out_plane = od * oh * ow;
+    let off = params.input_offset as i16;
+    // First output coordinate of phase f on an axis, and how many there are.
+    let first = |f: usize, s: usize, p: usize, n: usize| {
+        let z0 = (f + s - p % s) % s;
+        (z0, if z0 < n { (n - z0).div_ceil(s) } else { 0 })
+    };
+    let mut wbuf = [0u32; WEIGHT_WORDS];
+    let mut line = [0u32; LINE_WORDS];
+    for fz in 0..sd {
+        let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
+        for fy in 0..sh {
+            let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
+            for fx in 0..sw {
+                let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
+                if nz * ny * nx == 0 {
+                    continue;
+                }
+                let v_len = ic * tz * ty;
+                let vp = up4(v_len);
+                // Weights [O][c'][v] as i16 pairs: column tap c' reads input column
+                // bx − (tx − 1 − c').
+                let n = tx * vp / 2;
+                let wv = |o: usize, cp: usize, v: usize| {
+                    if v >= v_len {
+                        return 0;
+                    }
+                    let kx = fx + (tx - 1 - cp) * sw;
+                    let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
+                    let (kz, ky) = (fz + a * sd, fy + b * sh);
+                    params.weights[(((i * oc + o) * kd + kz) * kh + ky) * kw + kx]
+                };
+                for o in 0..oc {
+                    for cp in 0..tx {
+                        for j in 0..vp / 2 {
+                            let k = cp * vp / 2 + j;
+                            wbuf[wslot(o, k, n)] = word(wv(o, cp, 2 * j), wv(o, cp, 2 * j + 1));
+                        }
+                    }
+                }
+                pad_pairs(&mut wbuf, oc, n);
+                // Line column j holds input column ixlo + j, for bx0 − tx + 1 ..= last bx.
+                let bx0 = (x0 + pw) / sw;
+                let cols = if tx == 0 { 0 } else { nx + tx - 1 };
+                let ixlo = bx0 as isize + 1 - tx as isize;
+                let lo = (-ixlo).clamp(0, cols as isize) as usize;
+                let hi = (iw as isize - ixlo).clamp(lo as isize, cols as isize) as usize;
+                let span = (lo, hi, (ixlo + lo as isize).max(0) as usize);
+                let rin = RowIn {
+                    positions: nx,
+                    step: vp / 2,
+                    words: tx * vp / 2,
+                };
+                for qz in 0..nz {
+                    let z = z0 + qz * sd;
+                    let bz = (z + pd) / sd;
+                    for qy in 0..ny {
+                        let y = y0 + qy * sh;
+                        let by = (y + ph) / sh;
+                        fill(&mut line, vp, cols, span, input, off, |v| {
+                            if v >= v_len {
+                                return None;
+                            }
+                            let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
+                            let iz = bz.checked_sub(a).filter(|&c| c < id)?;
+                            let iy = by.checked_sub(b).filter(|&c| c < ih)?;
+                            Some(((i * id + iz) * ih + iy) * iw)
+                        });
+                        row(
+                            &line,
+                            rin,
+                            &wbuf[..oc.div_ceil(2) * 2 * n],
+                            params.bias,
+                            rq,
+                            params.relu,
+                            skip,
+                            output,
+                            RowOut {
+                                plane: out_plane,
+                                base: (z * oh + y) * ow + x0,
+                                step: sw,
+                            },
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// [`transposed`] with the fast requantisation when `bound` allows it and the skip table.
+pub(crate) fn run_transposed(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    bound: i64,
+    skip: &Skip<'_>,
+    output: &mut [i8],
+) {
+    let oc = shape.out_channels;
+    let table = skip_table(skip);
+    let lut = skip_lut(skip, &table);
+    match fast_requants(params.requant, bound) {
+        Some(f) => transposed(shape, input, params, &f[..oc], lut, output),
+        None => transposed(shape, input, params, params.requant, lut, output),
+    }
+}
