@@ -32,17 +32,6 @@ pub const MAX_V: usize = 256;
 /// Most output channels with prepared [`FastRequant`]s.
 pub const MAX_FAST_CHANNELS: usize = 32;
 
-/// The i16 slot (in the buffer viewed as i16, native order) of entry `k`: entries `2j`,
-/// `2j + 1` share word `j`, the even one in the low half (as [`crate::dsp::pack`]).
-#[inline(always)]
-const fn slot(k: usize) -> usize {
-    if cfg!(target_endian = "little") {
-        k
-    } else {
-        k ^ 1
-    }
-}
-
 /// `x` rounded up to a multiple of 4.
 #[inline(always)]
 pub(crate) const fn up4(x: usize) -> usize {
@@ -189,17 +178,17 @@ fn pad_pairs(wbuf: &mut [u32], oc: usize, n: usize) {
     }
 }
 
-/// Views the line buffer as i16 slots (native order, see [`slot`]).
-#[inline(always)]
-fn slots(line: &mut [u32]) -> &mut [i16] {
-    bytemuck::cast_slice_mut(line)
-}
+/// Longest input row the line engine reads (the zero row stands in for padding rows).
+pub const MAX_ROW: usize = 256;
+static ZEROS: [i8; MAX_ROW] = [0; MAX_ROW];
 
 /// Fills the line: for each `v` in `0..vp`, `src(v)` is the input offset of the row that
 /// entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
 /// column `in0` on, the other columns are 0 (padding).
+///
+/// Word by word: entries `2k`, `2k + 1` of every column come from two rows read in step
+/// ([`crate::dsp::pack_rows`]).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn fill(
     line: &mut [u32],
     vp: usize,
@@ -209,27 +198,27 @@ fn fill(
     off: i16,
     src: impl Fn(usize) -> Option<usize>,
 ) {
-    let s = slots(&mut line[..vp * cols / 2]);
-    for v in 0..vp {
-        let sv = slot(v);
-        match src(v) {
-            Some(base) if lo < hi => {
-                for c in 0..lo {
-                    s[c * vp + sv] = 0;
-                }
-                let row = &input[base + in0..base + in0 + (hi - lo)];
-                for (c, &x) in (lo..hi).zip(row) {
-                    s[c * vp + sv] = x as i16 + off;
-                }
-                for c in hi..cols {
-                    s[c * vp + sv] = 0;
-                }
-            }
-            _ => {
-                for c in 0..cols {
-                    s[c * vp + sv] = 0;
-                }
-            }
+    let vw = vp / 2;
+    if vw == 0 {
+        return;
+    }
+    let words = &mut line[..vw * cols];
+    let len = hi.saturating_sub(lo).min(MAX_ROW);
+    // Padding rows read zeros and add nothing (padding contributes 0, not the offset).
+    let row = |v: usize| match src(v) {
+        Some(base) => (&input[base + in0..base + in0 + len], off),
+        None => (&ZEROS[..len], 0),
+    };
+    for k in 0..vw {
+        let ((ra, oa), (rb, ob)) = (row(2 * k), row(2 * k + 1));
+        for c in 0..lo.min(cols) {
+            words[c * vw + k] = 0;
+        }
+        if len > 0 {
+            crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
+        }
+        for c in (lo + len).min(cols)..cols {
+            words[c * vw + k] = 0;
         }
     }
 }
@@ -240,6 +229,7 @@ pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
     let vp = up4(shape.in_channels * kd * kh);
     let cols = (shape.out_size[2] - 1) * shape.stride[2] + kw;
     vp <= MAX_V
+        && shape.in_size[2] <= MAX_ROW
         && vp * cols / 2 <= LINE_WORDS
         && shape.out_channels.div_ceil(2) * 2 * kw * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
@@ -353,6 +343,7 @@ pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
     let vp = up4(shape.in_channels * t(0) * t(1));
     let cols = shape.out_size[2].div_ceil(shape.stride[2]) + t(2);
     vp <= MAX_V
+        && shape.in_size[2] <= MAX_ROW
         && vp * cols / 2 <= LINE_WORDS
         && shape.out_channels.div_ceil(2) * 2 * t(2) * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS

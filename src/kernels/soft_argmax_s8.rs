@@ -298,16 +298,19 @@ fn head_by_columns<R: Apply>(
     for z in 0..id {
         for x in 0..iw {
             let slots: &mut [i16] = bytemuck::cast_slice_mut(&mut col[..ih * n]);
+            // Channel by channel: the channel's column is every iw-th input value; the
+            // destination rows are vp-value chunks (no index arithmetic per value).
             for c in 0..vp {
-                let dst = slots[slot(c)..].iter_mut().step_by(vp);
+                let sc = slot(c);
+                let rows = slots.chunks_exact_mut(vp);
                 if c < ic {
-                    let src = input[(c * id + z) * ih * iw + x..].iter().step_by(iw);
-                    for (d, &v) in dst.zip(src).take(ih) {
-                        *d = v as i16 + off;
+                    let src = input[(c * id + z) * ih * iw + x..].chunks(iw);
+                    for (d, r) in rows.zip(src) {
+                        d[sc] = r[0] as i16 + off;
                     }
                 } else {
-                    for d in dst {
-                        *d = 0;
+                    for d in rows {
+                        d[sc] = 0;
                     }
                 }
             }
