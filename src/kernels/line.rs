@@ -29,6 +29,8 @@ pub const LINE_WORDS: usize = 1024;
 pub const WEIGHT_WORDS: usize = 1024;
 /// Most line entries per column (`v`, padded to a multiple of 4).
 pub const MAX_V: usize = 256;
+/// Largest column stride of a transposed convolution the engine takes.
+pub const MAX_STRIDE: usize = 8;
 /// Most output channels with prepared [`FastRequant`]s.
 pub const MAX_FAST_CHANNELS: usize = 32;
 
@@ -337,22 +339,31 @@ pub(crate) fn phase_taps(k: usize, s: usize, f: usize) -> usize {
     }
 }
 
-/// Whether the transposed convolution fits the engine's buffers (phase 0 is the largest).
+/// Line columns the transposed engine needs at most: input columns `−(⌈kw/sw⌉ − 1)` to
+/// the last one any output reaches.
+fn transposed_cols(shape: &ConvShape) -> usize {
+    let (sw, pw) = (shape.stride[2], shape.padding[2]);
+    (shape.out_size[2] - 1 + pw) / sw + shape.kernel[2].div_ceil(sw)
+}
+
+/// Whether the transposed convolution fits the engine's buffers (phase 0 has the most taps;
+/// the x phases' weights, `kw` column taps in all, are held together).
 pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
     let t = |a: usize| shape.kernel[a].div_ceil(shape.stride[a]);
     let vp = up4(shape.in_channels * t(0) * t(1));
-    let cols = shape.out_size[2].div_ceil(shape.stride[2]) + t(2);
     vp <= MAX_V
         && shape.in_size[2] <= MAX_ROW
-        && vp * cols / 2 <= LINE_WORDS
-        && shape.out_channels.div_ceil(2) * 2 * t(2) * vp / 2 <= WEIGHT_WORDS
+        && vp * transposed_cols(shape) / 2 <= LINE_WORDS
+        && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
+        && shape.stride[2] <= MAX_STRIDE
 }
 
 /// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
 /// phase by phase: outputs with the same `(z + pad) mod stride` on every axis use the same
 /// taps, and along a row of one phase output `bx` reads input columns `bx − c`, a window
-/// of the line buffer like a forward convolution's.
+/// of the line buffer like a forward convolution's. The `sw` x phases of a (plane, row)
+/// read the same input rows, so they share one line fill.
 pub(crate) fn transposed<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
@@ -374,22 +385,38 @@ pub(crate) fn transposed<R: Apply>(
         let z0 = (f + s - p % s) % s;
         (z0, if z0 < n { (n - z0).div_ceil(s) } else { 0 })
     };
+    // The line holds input columns ixlo.. (ixlo ≤ 0: the taps left of column 0 are zeros).
+    let ixlo = 1 - kw.div_ceil(sw) as isize;
+    let cols = transposed_cols(shape);
+    let (lo, hi) = (
+        (-ixlo).clamp(0, cols as isize) as usize,
+        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
+    );
+    let span = (lo, hi.max(lo), 0);
     let mut wbuf = [0u32; WEIGHT_WORDS];
     let mut line = [0u32; LINE_WORDS];
     for fz in 0..sd {
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
-            for fx in 0..sw {
+            if nz * ny == 0 {
+                continue;
+            }
+            let v_len = ic * tz * ty;
+            let vp = up4(v_len);
+            let vw = vp / 2;
+            // Per x phase: (first x, count, taps, weight offset, first line word).
+            let mut xs = [(0usize, 0usize, 0usize, 0usize, 0usize); MAX_STRIDE];
+            let mut wofs = 0;
+            for (fx, x) in xs.iter_mut().enumerate().take(sw.min(MAX_STRIDE)) {
                 let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
-                if nz * ny * nx == 0 {
-                    continue;
-                }
-                let v_len = ic * tz * ty;
-                let vp = up4(v_len);
+                // Output x reads input columns bx − (tx − 1) ..= bx, bx = (x + pw) / sw.
+                let bx0 = (x0 + pw) / sw;
+                let start = (bx0 as isize + 1 - tx as isize - ixlo).max(0) as usize * vw;
+                *x = (x0, nx, tx, wofs, start);
                 // Weights [O][c'][v] as i16 pairs: column tap c' reads input column
                 // bx − (tx − 1 − c').
-                let n = tx * vp / 2;
+                let n = tx * vw;
                 let wv = |o: usize, cp: usize, v: usize| {
                     if v >= v_len {
                         return 0;
@@ -399,46 +426,46 @@ pub(crate) fn transposed<R: Apply>(
                     let (kz, ky) = (fz + a * sd, fy + b * sh);
                     params.weights[(((i * oc + o) * kd + kz) * kh + ky) * kw + kx]
                 };
+                let wb = &mut wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n];
                 for o in 0..oc {
                     for cp in 0..tx {
-                        for j in 0..vp / 2 {
-                            let k = cp * vp / 2 + j;
-                            wbuf[wslot(o, k, n)] = word(wv(o, cp, 2 * j), wv(o, cp, 2 * j + 1));
+                        for j in 0..vw {
+                            let k = cp * vw + j;
+                            wb[wslot(o, k, n)] = word(wv(o, cp, 2 * j), wv(o, cp, 2 * j + 1));
                         }
                     }
                 }
-                pad_pairs(&mut wbuf, oc, n);
-                // Line column j holds input column ixlo + j, for bx0 − tx + 1 ..= last bx.
-                let bx0 = (x0 + pw) / sw;
-                let cols = if tx == 0 { 0 } else { nx + tx - 1 };
-                let ixlo = bx0 as isize + 1 - tx as isize;
-                let lo = (-ixlo).clamp(0, cols as isize) as usize;
-                let hi = (iw as isize - ixlo).clamp(lo as isize, cols as isize) as usize;
-                let span = (lo, hi, (ixlo + lo as isize).max(0) as usize);
-                let rin = RowIn {
-                    positions: nx,
-                    step: vp / 2,
-                    words: tx * vp / 2,
-                };
-                for qz in 0..nz {
-                    let z = z0 + qz * sd;
-                    let bz = (z + pd) / sd;
-                    for qy in 0..ny {
-                        let y = y0 + qy * sh;
-                        let by = (y + ph) / sh;
-                        fill(&mut line, vp, cols, span, input, off, |v| {
-                            if v >= v_len {
-                                return None;
-                            }
-                            let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
-                            let iz = bz.checked_sub(a).filter(|&c| c < id)?;
-                            let iy = by.checked_sub(b).filter(|&c| c < ih)?;
-                            Some(((i * id + iz) * ih + iy) * iw)
-                        });
+                pad_pairs(wb, oc, n);
+                wofs += oc.div_ceil(2) * 2 * n;
+            }
+            for qz in 0..nz {
+                let z = z0 + qz * sd;
+                let bz = (z + pd) / sd;
+                for qy in 0..ny {
+                    let y = y0 + qy * sh;
+                    let by = (y + ph) / sh;
+                    fill(&mut line, vp, cols, span, input, off, |v| {
+                        if v >= v_len {
+                            return None;
+                        }
+                        let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
+                        let iz = bz.checked_sub(a).filter(|&c| c < id)?;
+                        let iy = by.checked_sub(b).filter(|&c| c < ih)?;
+                        Some(((i * id + iz) * ih + iy) * iw)
+                    });
+                    for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
+                        if nx == 0 {
+                            continue;
+                        }
+                        let n = tx * vw;
                         row(
-                            &line,
-                            rin,
-                            &wbuf[..oc.div_ceil(2) * 2 * n],
+                            &line[start..vw * cols],
+                            RowIn {
+                                positions: nx,
+                                step: vw,
+                                words: n,
+                            },
+                            &wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n],
                             params.bias,
                             rq,
                             params.relu,
