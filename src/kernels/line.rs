@@ -233,11 +233,20 @@ pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
     vp <= MAX_V
         && shape.in_size[2] <= MAX_ROW
         && vp * cols / 2 <= LINE_WORDS
-        && shape.out_channels.div_ceil(2) * 2 * kw * vp / 2 <= WEIGHT_WORDS
+        && 2 * kw * vp / 2 <= WEIGHT_WORDS
+        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= 2
         && shape.out_channels <= MAX_FAST_CHANNELS
 }
 
+/// Output channels per weight group: an even number whose `n` words each fit
+/// [`WEIGHT_WORDS`]. More than two groups (m0) refill the lines too often to beat im2col.
+fn conv_group(n: usize) -> usize {
+    (WEIGHT_WORDS / n.max(1) / 2 * 2).max(2)
+}
+
 /// Forward convolution (validated shape that [`conv_fits`]), requantising with `rq`.
+/// Output channels go in groups whose expanded weights fit [`WEIGHT_WORDS`] (one group for
+/// most layers; each further group refills the lines).
 pub(crate) fn conv<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
@@ -258,9 +267,8 @@ pub(crate) fn conv<R: Apply>(
     let (lo, hi) = (pw.min(cols), (iw + pw).min(cols));
     let span = (lo, hi, lo.saturating_sub(pw));
     let off = params.input_offset as i16;
-    // Weights [O][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
-    let mut wbuf = [0u32; WEIGHT_WORDS];
     let n = kw * vp / 2;
+    let group = conv_group(n);
     let wv = |o: usize, kx: usize, v: usize| {
         if v < v_len {
             params.weights[(o * v_len + v) * kw + kx]
@@ -268,49 +276,56 @@ pub(crate) fn conv<R: Apply>(
             0
         }
     };
-    for o in 0..oc {
-        for kx in 0..kw {
-            for j in 0..vp / 2 {
-                let k = kx * vp / 2 + j;
-                wbuf[wslot(o, k, n)] = word(wv(o, kx, 2 * j), wv(o, kx, 2 * j + 1));
-            }
-        }
-    }
-    pad_pairs(&mut wbuf, oc, n);
+    let mut wbuf = [0u32; WEIGHT_WORDS];
     let mut line = [0u32; LINE_WORDS];
     let out_plane = od * oh * ow;
     let rin = RowIn {
         positions: ow,
         step: sw * vp / 2,
-        words: kw * vp / 2,
+        words: n,
     };
-    for z in 0..od {
-        for y in 0..oh {
-            fill(&mut line, vp, cols, span, input, off, |v| {
-                if v >= v_len {
-                    return None;
+    let mut o0 = 0;
+    while o0 < oc {
+        let g = group.min(oc - o0);
+        // Weights [o][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
+        for o in 0..g {
+            for kx in 0..kw {
+                for j in 0..vp / 2 {
+                    let k = kx * vp / 2 + j;
+                    wbuf[wslot(o, k, n)] = word(wv(o0 + o, kx, 2 * j), wv(o0 + o, kx, 2 * j + 1));
                 }
-                let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
-                let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
-                let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
-                Some(((i * id + iz) * ih + iy) * iw)
-            });
-            row(
-                &line,
-                rin,
-                &wbuf[..oc.div_ceil(2) * 2 * n],
-                params.bias,
-                rq,
-                params.relu,
-                SkipLut::None,
-                output,
-                RowOut {
-                    plane: out_plane,
-                    base: (z * oh + y) * ow,
-                    step: 1,
-                },
-            );
+            }
         }
+        pad_pairs(&mut wbuf, g, n);
+        for z in 0..od {
+            for y in 0..oh {
+                fill(&mut line, vp, cols, span, input, off, |v| {
+                    if v >= v_len {
+                        return None;
+                    }
+                    let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
+                    let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
+                    let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
+                    Some(((i * id + iz) * ih + iy) * iw)
+                });
+                row(
+                    &line,
+                    rin,
+                    &wbuf[..g.div_ceil(2) * 2 * n],
+                    &params.bias[o0..o0 + g],
+                    &rq[o0..o0 + g],
+                    params.relu,
+                    SkipLut::None,
+                    output,
+                    RowOut {
+                        plane: out_plane,
+                        base: o0 * out_plane + (z * oh + y) * ow,
+                        step: 1,
+                    },
+                );
+            }
+        }
+        o0 += g;
     }
 }
 
