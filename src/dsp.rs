@@ -2,9 +2,10 @@
 //! fallbacks that give the same bits.
 //!
 //! With the `dsp` cargo feature on an ARM target the functions are single `SMLAD` /
-//! `SXTB16` instructions through `core::arch::asm!` (the only `unsafe` in the crate; the
-//! intrinsics in `core::arch::arm` are unstable). Everywhere else they are plain Rust with
-//! the instructions' exact semantics, so the host tests exercise the same data flow.
+//! `SXTB16` instructions, or short hand-scheduled loops ([`dot2x2`], [`pack_rows`]), through
+//! `core::arch::asm!` (the only `unsafe` in the crate; the intrinsics in `core::arch::arm`
+//! are unstable). Everywhere else they are plain Rust with the instructions' exact
+//! semantics, so the host tests exercise the same data flow.
 
 /// `SMLAD`: `acc + lo(x)·lo(y) + hi(x)·hi(y)` on signed 16-bit halves, wrapping like the
 /// instruction (the kernels' accumulator bounds exclude overflow anyway).

@@ -15,6 +15,10 @@
 //! and 4 `SMLAD` give 8 MACs. `v` is padded with zeros (and zero weights) to a multiple of
 //! 4 so every window is an even number of words.
 //!
+//! Cost on the QEMU Cortex-M7 (EPSSN-S, whole layers including the fill and the
+//! requantisation): f1 2.0, d1 2.2, u0 4.4 instructions per MAC; the inner loop alone is
+//! about 1.1.
+//!
 //! Requantisation uses [`FastRequant`] when the layer's worst-case accumulator allows it
 //! (always, for the EPSSN layers), else the exact [`Requant`] path, and a skip add reads a
 //! 256-entry table of `MBQM(q_skip)`.

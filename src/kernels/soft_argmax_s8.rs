@@ -251,7 +251,8 @@ const fn slot(k: usize) -> usize {
 /// gathered once (i16 pairs, offset added, `[y][c]`) and shared by the `kd · kw` rays that
 /// read them. Two rays × two range bins per [`crate::dsp::dot2x2`] (the rays' weights
 /// interleaved), the fast requantisation when the bound allows it, and each ray's maximum
-/// tracked while its logits are produced, so the soft-argmax is a single pass.
+/// tracked while its logits are produced, so the soft-argmax is a single pass (EPSSN-S on
+/// the QEMU Cortex-M7: about 86 instructions per logit, soft-argmax included).
 fn head_by_columns<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
