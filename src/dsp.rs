@@ -2,9 +2,10 @@
 //! fallbacks that give the same bits.
 //!
 //! With the `dsp` cargo feature on an ARM target the functions are single `SMLAD` /
-//! `SXTB16` instructions through `core::arch::asm!` (the only `unsafe` in the crate; the
-//! intrinsics in `core::arch::arm` are unstable). Everywhere else they are plain Rust with
-//! the instructions' exact semantics, so the host tests exercise the same data flow.
+//! `SXTB16` instructions, or short hand-scheduled loops ([`dot2x2`], [`pack_rows`]), through
+//! `core::arch::asm!` (the only `unsafe` in the crate; the intrinsics in `core::arch::arm`
+//! are unstable). Everywhere else they are plain Rust with the instructions' exact
+//! semantics, so the host tests exercise the same data flow.
 
 /// `SMLAD`: `acc + lo(x)·lo(y) + hi(x)·hi(y)` on signed 16-bit halves, wrapping like the
 /// instruction (the kernels' accumulator bounds exclude overflow anyway).
@@ -91,6 +92,142 @@ pub fn pack(a: i16, b: i16) -> u32 {
     (a as u16 as u32) | ((b as u16 as u32) << 16)
 }
 
+/// Two output channels × two positions of a dot product over i16 pairs (`SMLAD`):
+/// with `x0 = x[..n]`, `x1 = x[step..step + n]` and the channels' weights interleaved
+/// word by word in `w` (`w[2k]` channel 0, `w[2k + 1]` channel 1), returns `acc` plus
+/// `[x0·w_0, x1·w_0, x0·w_1, x1·w_1]` (each word two i16 products), wrapping like the
+/// instruction.
+///
+/// Slices too short for `n`, `step` give `acc` unchanged (the kernels never pass them).
+/// With the `dsp` feature on ARM and even `n` it is a hand-scheduled loop: LLVM spills
+/// the 4 accumulators of the Rust version to the stack (12 live registers are needed,
+/// exactly what Thumb-2 leaves to inline assembly), which costs about 2 instructions per
+/// MAC instead of 1.
+#[inline(always)]
+pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i32; 4] {
+    let (Some(xe), Some(we)) = (step.checked_add(n), n.checked_mul(2)) else {
+        return acc;
+    };
+    if x.len() < xe || x.len() < n || w.len() < we {
+        return acc;
+    }
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    if n % 2 == 0 {
+        if n == 0 {
+            return acc;
+        }
+        let [mut a00, mut a01, mut a10, mut a11] = acc;
+        let mut xp = x.as_ptr();
+        let mut wp = w.as_ptr();
+        // SAFETY: the loop reads x[0..n], x[step..step + n] and w[0..2n], all checked above;
+        // n is even and non-zero, so the two-words-per-iteration loop ends exactly at `end`.
+        #[allow(unsafe_code)]
+        unsafe {
+            let end = xp.add(n);
+            core::arch::asm!(
+                "2:",
+                "ldr   {xa}, [{xp}, {sb}]",
+                "ldr   {xb}, [{xp}], #4",
+                "ldrd  {wa}, {wb}, [{wp}], #8",
+                "smlad {a00}, {xb}, {wa}, {a00}",
+                "smlad {a01}, {xa}, {wa}, {a01}",
+                "smlad {a10}, {xb}, {wb}, {a10}",
+                "smlad {a11}, {xa}, {wb}, {a11}",
+                "ldr   {xa}, [{xp}, {sb}]",
+                "ldr   {xb}, [{xp}], #4",
+                "ldrd  {wa}, {wb}, [{wp}], #8",
+                "smlad {a00}, {xb}, {wa}, {a00}",
+                "smlad {a01}, {xa}, {wa}, {a01}",
+                "smlad {a10}, {xb}, {wb}, {a10}",
+                "smlad {a11}, {xa}, {wb}, {a11}",
+                "cmp   {xp}, {end}",
+                "bne   2b",
+                xp = inout(reg) xp,
+                wp = inout(reg) wp,
+                sb = in(reg) step * 4,
+                end = in(reg) end,
+                a00 = inout(reg) a00,
+                a01 = inout(reg) a01,
+                a10 = inout(reg) a10,
+                a11 = inout(reg) a11,
+                xa = out(reg) _,
+                xb = out(reg) _,
+                wa = out(reg) _,
+                wb = out(reg) _,
+                options(nostack, readonly),
+            );
+        }
+        let _ = (xp, wp);
+        return [a00, a01, a10, a11];
+    }
+    let [mut a00, mut a01, mut a10, mut a11] = acc;
+    for ((&x0, &x1), w) in x[..n].iter().zip(&x[step..xe]).zip(w[..we].chunks_exact(2)) {
+        a00 = smlad(x0, w[0], a00);
+        a01 = smlad(x1, w[0], a01);
+        a10 = smlad(x0, w[1], a10);
+        a11 = smlad(x1, w[1], a11);
+    }
+    [a00, a01, a10, a11]
+}
+
+/// Interleaves two i8 rows into i16 pairs: `dst[j · stride] = pack(a[j] + oa, b[j] + ob)`
+/// for `j < min(a.len(), b.len())` (a line-buffer column of the convolution engines).
+///
+/// Positions past the end of `dst` are skipped (the kernels never pass them). With the
+/// `dsp` feature on ARM it is a 9-instruction loop (`PKHBT` packs the pair); the Rust
+/// version costs about 20 instructions per word on Cortex-M7 (iterator bookkeeping).
+#[inline(always)]
+pub fn pack_rows(dst: &mut [u32], stride: usize, a: &[i8], b: &[i8], oa: i16, ob: i16) {
+    let n = a.len().min(b.len());
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    {
+        let fits = n
+            .checked_sub(1)
+            .and_then(|m| m.checked_mul(stride))
+            .is_some_and(|last| last < dst.len());
+        if fits && stride <= usize::MAX / 4 {
+            let mut dp = dst.as_mut_ptr();
+            let mut ap = a.as_ptr();
+            let mut bp = b.as_ptr();
+            let mut left = n;
+            // SAFETY: writes dst[j · stride] for j < n, the last of which is in bounds
+            // (checked above); reads a[..n] and b[..n]; n ≥ 1.
+            #[allow(unsafe_code)]
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    "ldrsb {x}, [{ap}], #1",
+                    "ldrsb {y}, [{bp}], #1",
+                    "add   {x}, {x}, {oa}",
+                    "add   {y}, {y}, {ob}",
+                    "pkhbt {x}, {x}, {y}, lsl #16",
+                    "str   {x}, [{dp}]",
+                    "add   {dp}, {dp}, {sb}",
+                    "subs  {n}, {n}, #1",
+                    "bne   2b",
+                    dp = inout(reg) dp,
+                    ap = inout(reg) ap,
+                    bp = inout(reg) bp,
+                    n = inout(reg) left,
+                    sb = in(reg) stride * 4,
+                    oa = in(reg) oa as i32,
+                    ob = in(reg) ob as i32,
+                    x = out(reg) _,
+                    y = out(reg) _,
+                    options(nostack),
+                );
+            }
+            let _ = (dp, ap, bp, left);
+            return;
+        }
+    }
+    for (j, (&x, &y)) in a[..n].iter().zip(&b[..n]).enumerate() {
+        if let Some(d) = dst.get_mut(j * stride) {
+            *d = pack(x as i16 + oa, y as i16 + ob);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -115,5 +252,61 @@ mod tests {
             assert_eq!(o as u16 as i16 as i32, bytes[1]);
             assert_eq!((o >> 16) as u16 as i16 as i32, bytes[3]);
         }
+    }
+
+    #[test]
+    fn dot2x2_is_the_sum_of_products() {
+        let mut s = 0x1234_5678u32;
+        let mut r = || {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            s
+        };
+        for n in 0..9 {
+            for step in 0..4 {
+                let x: std::vec::Vec<u32> = (0..n + step + 2).map(|_| r()).collect();
+                let w: std::vec::Vec<u32> = (0..2 * n + 1).map(|_| r()).collect();
+                let acc = [r() as i32 >> 4, 5, -7, 11];
+                let half = |v: u32, h: u32| (v >> (16 * h)) as u16 as i16 as i64;
+                let mut want = acc.map(|a| a as i64);
+                for k in 0..n {
+                    for h in 0..2 {
+                        want[0] += half(x[k], h) * half(w[2 * k], h);
+                        want[1] += half(x[k + step], h) * half(w[2 * k], h);
+                        want[2] += half(x[k], h) * half(w[2 * k + 1], h);
+                        want[3] += half(x[k + step], h) * half(w[2 * k + 1], h);
+                    }
+                }
+                let got = dot2x2(&x, step, &w, n, acc);
+                assert_eq!(got, want.map(|v| v as i32), "n={n} step={step}");
+            }
+        }
+        // Too-short slices: nothing happens, no panic.
+        assert_eq!(
+            dot2x2(&[1, 2], 1, &[1, 2, 3, 4], 2, [1, 2, 3, 4]),
+            [1, 2, 3, 4]
+        );
+    }
+
+    #[test]
+    fn pack_rows_interleaves_with_offsets() {
+        let a = [1i8, -128, 127, 0, -5];
+        let b = [-1i8, 127, -128, 9, 3];
+        for stride in 1..4 {
+            let mut dst = std::vec![0xdead_beefu32; 5 * stride];
+            pack_rows(&mut dst, stride, &a, &b[..4], 128, -3);
+            for (j, w) in dst.iter().enumerate() {
+                let want = if j % stride == 0 && j / stride < 4 {
+                    let k = j / stride;
+                    pack(a[k] as i16 + 128, b[k] as i16 - 3)
+                } else {
+                    0xdead_beef
+                };
+                assert_eq!(*w, want, "stride {stride} word {j}");
+            }
+        }
+        // A destination too short: the words that fit, no panic.
+        let mut short = [0u32; 3];
+        pack_rows(&mut short, 2, &a, &b, 0, 0);
+        assert_eq!(short, [pack(1, -1), 0, pack(-128, 127)]);
     }
 }

@@ -62,7 +62,8 @@ pub fn conv2d_s8_plain(
     Ok(())
 }
 
-/// Optimised: when the taps of one output (`I · kh · kw`) fit
+/// Optimised: the line-buffer engine of the `line` module when the layer fits its stack
+/// buffers (all EPSSN layers do). Otherwise, when the taps of one output (`I · kh · kw`) fit
 /// [`super::conv3d_s8::COL_LEN`], the im2col engine of [`super::conv3d_s8::conv3d_s8`]
 /// (a 2D layer is a 3D one with a trivial third axis, same memory layout): two output
 /// positions per dot product over packed i16 columns. Otherwise
@@ -74,8 +75,19 @@ pub fn conv2d_s8(
     output: &mut [i8],
 ) -> Result<(), KernelError> {
     check_2d(shape)?;
-    check_conv(shape, input.len(), params, output.len())?;
-    if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {
+    let bound = check_conv(shape, input.len(), params, output.len())?;
+    // Axes [H, W, 1] as [1, H, W]: the line engine's rows run along W (same memory layout).
+    let s3 = ConvShape {
+        kernel: [1, shape.kernel[0], shape.kernel[1]],
+        stride: [1, shape.stride[0], shape.stride[1]],
+        padding: [0, shape.padding[0], shape.padding[1]],
+        in_size: [1, shape.in_size[0], shape.in_size[1]],
+        out_size: [1, shape.out_size[0], shape.out_size[1]],
+        ..*shape
+    };
+    if super::line::conv_fits(&s3) {
+        super::line::run_conv(&s3, input, params, bound, output);
+    } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {
         // Axes [H, W, 1] used as [D, H, W]: rows of length 1 in the gather, same sums.
         super::conv3d_s8::im2col_engine(shape, input, params, output);
     } else {

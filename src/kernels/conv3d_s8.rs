@@ -60,7 +60,10 @@ pub fn conv3d_s8_plain(
     Ok(())
 }
 
-/// Optimised. When the taps of one output (`I · kd · kh · kw`) fit [`COL_LEN`], the inputs
+/// Optimised. Layers that fit its stack buffers run the line-buffer engine (the `line`
+/// module: each output row's inputs gathered once, windows shared by neighbouring
+/// positions, 2 channels × 2 positions per inner loop, fast requantisation). Otherwise,
+/// when the taps of one output (`I · kd · kh · kw`) fit [`COL_LEN`], the inputs
 /// of two output positions are gathered once into i16 columns on the stack (offset added,
 /// padding 0; CMSIS-NN's im2col), packed two per word, and every output channel's
 /// contiguous weights `[K]` run one dot product over both positions, so each weight load
@@ -73,8 +76,10 @@ pub fn conv3d_s8(
     params: &ConvParams<'_>,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    check_conv(shape, input.len(), params, output.len())?;
-    if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
+    let bound = check_conv(shape, input.len(), params, output.len())?;
+    if super::line::conv_fits(shape) {
+        super::line::run_conv(shape, input, params, bound, output);
+    } else if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
         im2col_engine(shape, input, params, output);
     } else {
         rows_engine(shape, input, params, output);
@@ -458,10 +463,44 @@ mod tests {
     }
 
     #[test]
+    fn line_engine_channel_groups_equal_plain() {
+        // d2 (2 groups of 8 channels) and a layer whose last group is odd (8 + 3).
+        let mut rng = Rng(0x6d30);
+        let odd = ConvShape {
+            in_channels: 40,
+            out_channels: 11,
+            kernel: [1, 2, 3],
+            stride: [1, 1, 2],
+            padding: [0, 1, 1],
+            output_padding: [0; 3],
+            in_size: [2, 3, 7],
+            out_size: [2, 4, 4],
+        };
+        for (k, shape) in [ConvShape::from(&config::LAYER_D2), odd].iter().enumerate() {
+            assert!(super::super::line::conv_fits(shape));
+            let (w, b, r) = params(&mut rng, shape);
+            let input = rng.i8s(shape.in_channels * shape.in_size.iter().product::<usize>());
+            let p = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &r,
+                input_offset: if k == 1 { 128 } else { 0 },
+                relu: k == 0,
+            };
+            let n = shape.out_channels * shape.out_size.iter().product::<usize>();
+            let (mut a, mut o) = (vec![0i8; n], vec![1i8; n]);
+            conv3d_s8_plain(shape, &input, &p, &mut a).unwrap();
+            conv3d_s8(shape, &input, &p, &mut o).unwrap();
+            assert_eq!(a, o, "{shape:?}");
+            assert!(a.iter().any(|&v| v != a[0]));
+        }
+    }
+
+    #[test]
     fn layer_too_large_for_the_column_buffer_takes_the_row_path() {
         let mut rng = Rng(21);
         let shape = ConvShape {
-            in_channels: 20,
+            in_channels: 30,
             out_channels: 3,
             kernel: [3, 3, 3],
             stride: [1, 2, 1],
@@ -470,9 +509,10 @@ mod tests {
             in_size: [3, 4, 5],
             out_size: [3, 2, 5],
         };
-        const { assert!(20 * 27 > COL_LEN) };
+        // Too many taps for the line engine (v = 30·9 > MAX_V) and for the columns.
+        const { assert!(30 * 27 > COL_LEN && 30 * 9 > super::super::line::MAX_V) };
         let (w, b, r) = params(&mut rng, &shape);
-        let input = rng.i8s(20 * 60);
+        let input = rng.i8s(30 * 60);
         let p = ConvParams {
             weights: &w,
             bias: &b,

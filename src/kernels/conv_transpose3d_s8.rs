@@ -11,7 +11,6 @@
 //! MACs: `I · D · H · W · O · kd · kh · kw` (the scatter count; taps falling outside the
 //! output are skipped).
 
-use super::conv3d_s8::PairColumns;
 use super::{check_conv_transpose, check_skip, finish, ConvParams, ConvShape, KernelError, Skip};
 use crate::requant::Requant;
 
@@ -105,12 +104,11 @@ fn taps(out: usize, s: usize, p: usize, k: usize, n: usize) -> (usize, usize, us
 }
 
 /// Optimised: the layer is split into its `sd·sh·sw` output phases (outputs with the same
-/// `(z + pad) mod stride` on every axis use the same kernel taps, a sub-convolution). Per
-/// phase, the phase's weights are copied into a contiguous `[O][K_phase]` stack buffer and
-/// the inputs of two output positions are gathered into one packed i16 column (0 where a
-/// tap falls outside the input), so the inner loop is the same two-position dot product as
-/// the forward convolution's im2col engine. Layers whose phases exceed [`PHASE_COL_LEN`]
-/// taps or [`PHASE_WEIGHTS_LEN`] weights fall back to [`conv_transpose3d_s8_taps`].
+/// `(z + pad) mod stride` on every axis use the same kernel taps, a sub-convolution); each
+/// row of a phase gathers its inputs once into a line buffer and runs the shared
+/// 2-channel × 2-position dot product (see the `line` module), with the fast
+/// requantisation and a tabulated skip. Layers too large for its stack buffers fall back
+/// to [`conv_transpose3d_s8_taps`].
 pub fn conv_transpose3d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -118,15 +116,10 @@ pub fn conv_transpose3d_s8(
     skip: Skip<'_>,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    check_conv_transpose(shape, input.len(), params, output.len())?;
+    let bound = check_conv_transpose(shape, input.len(), params, output.len())?;
     check_skip(&skip, output.len())?;
-    // Phase 0 has the most taps on every axis.
-    let kp = shape.in_channels
-        * (0..3)
-            .map(|a| shape.kernel[a].div_ceil(shape.stride[a]))
-            .product::<usize>();
-    if kp <= PHASE_COL_LEN && kp * shape.out_channels <= PHASE_WEIGHTS_LEN {
-        phase_engine(shape, input, params, &skip, output);
+    if super::line::transposed_fits(shape) {
+        super::line::run_transposed(shape, input, params, bound, &skip, output);
     } else {
         taps_engine(shape, input, params, &skip, output);
     }
@@ -164,133 +157,6 @@ fn taps_engine(
     }
     if o < oc {
         block::<1>(shape, input, params, skip, output, o);
-    }
-}
-
-/// Most taps of one output phase (input channels × phase taps) the phase engine gathers.
-pub const PHASE_COL_LEN: usize = 256;
-/// Most phase weights (all output channels) the phase engine copies to the stack.
-pub const PHASE_WEIGHTS_LEN: usize = 2048;
-
-/// Taps of phase `f` on an axis with kernel `k`, stride `s`: `k = f + t·s`, `t < count`.
-#[inline(always)]
-fn phase_taps(k: usize, s: usize, f: usize) -> usize {
-    if f >= k {
-        0
-    } else {
-        (k - f).div_ceil(s)
-    }
-}
-
-/// Valid `t` of a phase tap list reading input `base − t` on an axis of `n` inputs.
-#[inline(always)]
-fn valid(base: usize, count: usize, n: usize) -> (usize, usize) {
-    ((base + 1).saturating_sub(n), count.min(base + 1))
-}
-
-fn phase_engine(
-    shape: &ConvShape,
-    input: &[i8],
-    params: &ConvParams<'_>,
-    skip: &Skip<'_>,
-    output: &mut [i8],
-) {
-    let [id, ih, iw] = shape.in_size;
-    let [od, oh, ow] = shape.out_size;
-    let [kd, kh, kw] = shape.kernel;
-    let [sd, sh, sw] = shape.stride;
-    let [pd, ph, pw] = shape.padding;
-    let (ic, oc) = (shape.in_channels, shape.out_channels);
-    let taps_len = kd * kh * kw;
-    let in_plane = id * ih * iw;
-    let out_plane = od * oh * ow;
-    // |offset| ≤ 255 is validated, so offset inputs fit i16.
-    let off = params.input_offset as i16;
-    let mut wbuf = [0i8; PHASE_WEIGHTS_LEN];
-    let mut cols = [[0i16; PHASE_COL_LEN]; 2];
-    let mut packed = PairColumns::new();
-    // First output coordinate of phase f on an axis, and how many there are.
-    let first = |f: usize, s: usize, p: usize, n: usize| {
-        let z0 = (f + s - p % s) % s;
-        (z0, if z0 < n { (n - z0).div_ceil(s) } else { 0 })
-    };
-    for fz in 0..sd {
-        let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
-        for fy in 0..sh {
-            let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
-            for fx in 0..sw {
-                let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
-                let kp = ic * tz * ty * tx;
-                // Phase weights, [O][I][tz][ty][tx].
-                let mut n = 0;
-                for o in 0..oc {
-                    for i in 0..ic {
-                        let wo = &params.weights[(i * oc + o) * taps_len..][..taps_len];
-                        for a in 0..tz {
-                            for b in 0..ty {
-                                let row = ((fz + a * sd) * kh + fy + b * sh) * kw + fx;
-                                for c in 0..tx {
-                                    wbuf[n] = wo[row + c * sw];
-                                    n += 1;
-                                }
-                            }
-                        }
-                    }
-                }
-                let positions = nz * ny * nx;
-                let at = |q: usize| {
-                    (
-                        z0 + (q / (ny * nx)) * sd,
-                        y0 + ((q / nx) % ny) * sh,
-                        x0 + (q % nx) * sw,
-                    )
-                };
-                let mut q = 0;
-                while q < positions {
-                    let count = if q + 1 < positions { 2 } else { 1 };
-                    let mut pos = [(0, 0, 0); 2];
-                    for (j, col) in cols.iter_mut().enumerate().take(count) {
-                        let (z, y, x) = at(q + j);
-                        pos[j] = (z, y, x);
-                        let (bz, by, bx) = ((z + pd) / sd, (y + ph) / sh, (x + pw) / sw);
-                        let (az, bz_hi) = valid(bz, tz, id);
-                        let (ay, by_hi) = valid(by, ty, ih);
-                        let (ax, bx_hi) = valid(bx, tx, iw);
-                        let col = &mut col[..kp];
-                        if az > 0 || ay > 0 || ax > 0 || bz_hi < tz || by_hi < ty || bx_hi < tx {
-                            col.fill(0);
-                        }
-                        for i in 0..ic {
-                            let inp = &input[i * in_plane..(i + 1) * in_plane];
-                            for a in az..bz_hi {
-                                for b in ay..by_hi {
-                                    let irow = ((bz - a) * ih + (by - b)) * iw;
-                                    let crow = ((i * tz + a) * ty + b) * tx;
-                                    for c in ax..bx_hi {
-                                        col[crow + c] = inp[irow + bx - c] as i16 + off;
-                                    }
-                                }
-                            }
-                        }
-                    }
-                    if count == 1 {
-                        cols[1][..kp].fill(0);
-                    }
-                    packed.pack(&cols[0][..kp], &cols[1][..kp]);
-                    for o in 0..oc {
-                        let b = params.bias[o];
-                        let acc = packed.dot(&wbuf[o * kp..(o + 1) * kp], [b, b]);
-                        for (j, &a) in acc.iter().enumerate().take(count) {
-                            let (z, y, x) = pos[j];
-                            let idx = o * out_plane + (z * oh + y) * ow + x;
-                            let t = params.requant[o].apply(a);
-                            output[idx] = finish(t, params.relu, skip_at(skip, output, idx));
-                        }
-                    }
-                    q += count;
-                }
-            }
-        }
     }
 }
 
@@ -449,7 +315,7 @@ mod tests {
             in_size: [2, 3, 2],
             out_size: [2, 3, 2],
         };
-        const { assert!(40 * 27 > PHASE_COL_LEN) };
+        const { assert!(40 * 9 > super::super::line::MAX_V) };
         run_all(&shape, &mut Rng(77), true);
     }
 

@@ -11,7 +11,7 @@
 
 use super::{expect, KernelError, Operand};
 use crate::geometry::WarpEntry;
-use crate::requant::Requant;
+use crate::requant::{FastRequant, Requant};
 
 /// Sizes of the cost volume.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -162,8 +162,47 @@ pub fn cost_volume_s8_plain(
     Ok(())
 }
 
-/// Optimised: row slices hoisted out of the column loop; two views reduce to
-/// `X = (v0 − v1)²`.
+/// A validated warp entry as two column indices and two weights (invisible → weights 0,
+/// which gives `(0 + 0 + 128) >> 8 = 0`, the contract's invisible value).
+#[derive(Clone, Copy, Default)]
+struct Tap {
+    left: u8,
+    right: u8,
+    wl: i16,
+    wr: i16,
+}
+
+impl Tap {
+    #[inline(always)]
+    fn new(e: WarpEntry) -> Tap {
+        if !e.visible {
+            return Tap::default();
+        }
+        let a = e.fraction as i16;
+        // F[c+1] is read only when α > 0 (it may not exist for the last column).
+        let right = if a > 0 { e.column + 1 } else { e.column };
+        Tap {
+            left: e.column,
+            right,
+            wl: ONE as i16 - a,
+            wr: a,
+        }
+    }
+
+    #[inline(always)]
+    fn warp(self, row: &[i8]) -> i32 {
+        let l = row[self.left as usize] as i32 * self.wl as i32;
+        (l + row[self.right as usize] as i32 * self.wr as i32 + 128) >> 8
+    }
+}
+
+/// Most feature columns the optimised kernel's per-plane tap table holds.
+const MAX_WIDTH: usize = 64;
+
+/// Optimised: each plane's warp entries become column/weight pairs once (no visibility
+/// test per voxel); with two views `X = (v0 − v1)²` depends only on `|v0 − v1| ≤ 255`, so
+/// `clamp(MBQM(X))` is a 256-entry table built once per call; three views use the fast
+/// requantisation when the bound allows it.
 pub fn cost_volume_s8(
     shape: &CostShape,
     reference: &[i8],
@@ -183,10 +222,24 @@ pub fn cost_volume_s8(
         // Nothing to compute (and a zero chunk size below would be meaningless).
         return Ok(());
     }
+    if width > MAX_WIDTH {
+        return cost_volume_s8_plain(shape, reference, sources, requant, output);
+    }
+    // |v0 − v1| ≤ 255 for int8 values and warps in −128..=127.
+    let table: [i8; 256] =
+        core::array::from_fn(|d| requant.apply((d * d) as i32).clamp(0, 127) as i8);
+    // X ≤ 9·128² for three views.
+    let fast = requant.fits_fast(9 * 128 * 128);
+    let frq = FastRequant::new(requant);
     for (c, out_c) in output.chunks_exact_mut(planes * plane_len).enumerate() {
         let ref_c = &reference[c * plane_len..(c + 1) * plane_len];
         for (j, out_j) in out_c.chunks_exact_mut(plane_len).enumerate() {
-            let warp0 = &sources[0].warp[j * width..(j + 1) * width];
+            let mut taps = [[Tap::default(); MAX_WIDTH]; 2];
+            for (t, s) in taps.iter_mut().zip(sources) {
+                for (t, &e) in t.iter_mut().zip(&s.warp[j * width..(j + 1) * width]) {
+                    *t = Tap::new(e);
+                }
+            }
             let src0 = &sources[0].features[c * plane_len..(c + 1) * plane_len];
             match sources.get(1) {
                 None => {
@@ -195,14 +248,13 @@ pub fn cost_volume_s8(
                         .zip(ref_c.chunks_exact(width))
                         .zip(src0.chunks_exact(width))
                     {
-                        for ((o, &v0), &e) in out_r.iter_mut().zip(ref_r).zip(warp0) {
-                            let d = v0 as i32 - warp(src_r, e);
-                            *o = requant.apply(d * d).clamp(0, 127) as i8;
+                        for ((o, &v0), &t) in out_r.iter_mut().zip(ref_r).zip(&taps[0]) {
+                            let d = v0 as i32 - t.warp(src_r);
+                            *o = table[d.unsigned_abs() as u8 as usize];
                         }
                     }
                 }
                 Some(s1) => {
-                    let warp1 = &s1.warp[j * width..(j + 1) * width];
                     let src1 = &s1.features[c * plane_len..(c + 1) * plane_len];
                     for (r, out_r) in out_j.chunks_exact_mut(width).enumerate() {
                         let ref_r = &ref_c[r * width..(r + 1) * width];
@@ -210,10 +262,12 @@ pub fn cost_volume_s8(
                         let s1r = &src1[r * width..(r + 1) * width];
                         for (b, o) in out_r.iter_mut().enumerate() {
                             let v0 = ref_r[b] as i32;
-                            let v1 = warp(s0r, warp0[b]);
-                            let v2 = warp(s1r, warp1[b]);
+                            let v1 = taps[0][b].warp(s0r);
+                            let v2 = taps[1][b].warp(s1r);
                             let sum = v0 + v1 + v2;
-                            *o = cost(sum, v0 * v0 + v1 * v1 + v2 * v2, 3, requant);
+                            let x = 3 * (v0 * v0 + v1 * v1 + v2 * v2) - sum * sum;
+                            let q = if fast { frq.apply(x) } else { requant.apply(x) };
+                            *o = q.clamp(0, 127) as i8;
                         }
                     }
                 }

@@ -18,6 +18,7 @@ pub mod conv2d_s8;
 pub mod conv3d_s8;
 pub mod conv_transpose3d_s8;
 pub mod cost_volume_s8;
+mod line;
 pub mod soft_argmax_s8;
 
 use crate::config::LayerShape;
@@ -352,14 +353,14 @@ pub(crate) fn mul3(a: [usize; 3]) -> Result<usize, KernelError> {
         .ok_or(KernelError::SizeOverflow)
 }
 
-/// Validates a forward convolution's shape and every slice; returns nothing but guarantees
-/// that all indices the kernels form are in bounds.
+/// Validates a forward convolution's shape and every slice, which guarantees that all
+/// indices the kernels form are in bounds; returns the worst-case accumulator.
 pub(crate) fn check_conv(
     shape: &ConvShape,
     input_len: usize,
     params: &ConvParams<'_>,
     output_len: usize,
-) -> Result<(), KernelError> {
+) -> Result<i64, KernelError> {
     for axis in 0..3 {
         let (k, s, p) = (shape.kernel[axis], shape.stride[axis], shape.padding[axis]);
         if k == 0 || s == 0 {
@@ -381,17 +382,17 @@ pub(crate) fn check_conv(
         }
     }
     check_lengths(shape, input_len, output_len)?;
-    check_layer_bounds(shape, params, false)?;
-    Ok(())
+    check_layer_bounds(shape, params, false)
 }
 
-/// Validates a transposed convolution's shape and every slice.
+/// Validates a transposed convolution's shape and every slice; returns the worst-case
+/// accumulator.
 pub(crate) fn check_conv_transpose(
     shape: &ConvShape,
     input_len: usize,
     params: &ConvParams<'_>,
     output_len: usize,
-) -> Result<(), KernelError> {
+) -> Result<i64, KernelError> {
     for axis in 0..3 {
         let (k, s, p, op) = (
             shape.kernel[axis],
@@ -425,8 +426,7 @@ pub(crate) fn check_conv_transpose(
         }
     }
     check_lengths(shape, input_len, output_len)?;
-    check_layer_bounds(shape, params, true)?;
-    Ok(())
+    check_layer_bounds(shape, params, true)
 }
 
 fn check_lengths(

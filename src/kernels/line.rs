@@ -1,0 +1,522 @@
+//! Line-buffer engine shared by the forward and transposed convolutions.
+//!
+//! For one output row (fixed plane and row of a forward convolution, or of one output phase
+//! of a transposed one) the engine gathers, once, every input value the row reads into a
+//! line buffer laid out `[column][v]`, where `v` runs over (input channel, plane tap, row
+//! tap). The taps of one output position are then one contiguous window of the buffer
+//! (`kw` consecutive columns), and the windows of neighbouring positions overlap instead of
+//! being copied per position (im2col). The weights are reordered once per call (per phase)
+//! to `[O][column tap][v]`, so every output is a dot product of two contiguous arrays.
+//!
+//! The inner loop computes 2 output channels × 2 positions at once
+//! ([`crate::dsp::dot2x2`]): the line holds i16 values (offset added, 0 at padding) two
+//! per word, the weights are expanded once to i16 pairs with the two channels' words
+//! interleaved, so per 2 taps one load of each position's word, one `LDRD` of the weights
+//! and 4 `SMLAD` give 8 MACs. `v` is padded with zeros (and zero weights) to a multiple of
+//! 4 so every window is an even number of words.
+//!
+//! Cost on the QEMU Cortex-M7 (EPSSN-S, whole layers including the fill and the
+//! requantisation): f1 2.0, d1 2.2, u0 4.4 instructions per MAC; the inner loop alone is
+//! about 1.1.
+//!
+//! Requantisation uses [`FastRequant`] when the layer's worst-case accumulator allows it
+//! (always, for the EPSSN layers), else the exact [`Requant`] path, and a skip add reads a
+//! 256-entry table of `MBQM(q_skip)`.
+
+use super::{ConvParams, ConvShape, Skip};
+use crate::dsp::dot2x2;
+use crate::requant::{Apply, FastRequant, Requant};
+
+/// Words (two i16 entries each) of the line buffer.
+pub const LINE_WORDS: usize = 1024;
+/// Words (two i16 weights each) of the reordered weights of one call or phase.
+pub const WEIGHT_WORDS: usize = 1024;
+/// Most line entries per column (`v`, padded to a multiple of 4).
+pub const MAX_V: usize = 256;
+/// Largest column stride of a transposed convolution the engine takes.
+pub const MAX_STRIDE: usize = 8;
+/// Most output channels with prepared [`FastRequant`]s.
+pub const MAX_FAST_CHANNELS: usize = 32;
+
+/// `x` rounded up to a multiple of 4.
+#[inline(always)]
+pub(crate) const fn up4(x: usize) -> usize {
+    x.div_ceil(4) * 4
+}
+
+/// Prepared requantisations of `params` when every channel fits the fast path for the
+/// layer's worst-case accumulator `bound`.
+pub(crate) fn fast_requants(
+    requant: &[Requant],
+    bound: i64,
+) -> Option<[FastRequant; MAX_FAST_CHANNELS]> {
+    if requant.len() > MAX_FAST_CHANNELS || !requant.iter().all(|r| r.fits_fast(bound)) {
+        return None;
+    }
+    let mut f = [FastRequant::default(); MAX_FAST_CHANNELS];
+    for (f, &r) in f.iter_mut().zip(requant) {
+        *f = FastRequant::new(r);
+    }
+    Some(f)
+}
+
+/// The skip operand, with `MBQM(q_skip)` tabulated over the 256 int8 values.
+#[derive(Clone, Copy)]
+pub(crate) enum SkipLut<'a> {
+    None,
+    Separate(&'a [i8], &'a [i32; 256]),
+    InPlace(&'a [i32; 256]),
+}
+
+/// `MBQM(q, skip multiplier)` for every int8 `q` (index `q as u8`).
+pub(crate) fn skip_table(skip: &Skip<'_>) -> Option<[i32; 256]> {
+    let rq = match *skip {
+        Skip::None => return None,
+        Skip::Separate { requant, .. } | Skip::InPlace { requant } => requant,
+    };
+    Some(core::array::from_fn(|u| rq.apply(u as u8 as i8 as i32)))
+}
+
+pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> SkipLut<'a> {
+    match (skip, table) {
+        (Skip::Separate { skip, .. }, Some(t)) => SkipLut::Separate(skip, t),
+        (Skip::InPlace { .. }, Some(t)) => SkipLut::InPlace(t),
+        _ => SkipLut::None,
+    }
+}
+
+/// `t` → output: ReLU, skip add (table), int8 clamp; as [`super::finish`].
+#[inline(always)]
+fn store(out: &mut [i8], idx: usize, t: i32, relu: bool, skip: SkipLut<'_>) {
+    let t = if relu { t.max(0) } else { t };
+    let y = match skip {
+        SkipLut::None => t,
+        SkipLut::Separate(s, lut) => t.saturating_add(lut[s[idx] as u8 as usize]),
+        SkipLut::InPlace(lut) => t.saturating_add(lut[out[idx] as u8 as usize]),
+    };
+    out[idx] = y.clamp(-128, 127) as i8;
+}
+
+/// Where a row's outputs go: output `(o, q)` at `o · plane + base + q · step`.
+#[derive(Clone, Copy)]
+pub(crate) struct RowOut {
+    pub plane: usize,
+    pub base: usize,
+    pub step: usize,
+}
+
+/// The packed-line geometry of one row: position `q` reads words
+/// `line[q · step .. q · step + words]`, dotted with `words / 2` weight words per channel.
+#[derive(Clone, Copy)]
+pub(crate) struct RowIn {
+    pub positions: usize,
+    pub step: usize,
+    pub words: usize,
+}
+
+/// One row of outputs for all channels: 2 channels × 2 positions per inner loop
+/// ([`crate::dsp::dot2x2`]). `weights` holds, per channel pair, the two channels' words
+/// interleaved (`rin.words` words per channel; an odd last channel is paired with itself).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn row<R: Apply>(
+    line: &[u32],
+    rin: RowIn,
+    weights: &[u32],
+    bias: &[i32],
+    rq: &[R],
+    relu: bool,
+    skip: SkipLut<'_>,
+    out: &mut [i8],
+    rout: RowOut,
+) {
+    let n = rin.words;
+    let step = if n == 0 { 0 } else { rin.step };
+    let oc = bias.len().min(rq.len());
+    let at = |o: usize, q: usize| o * rout.plane + rout.base + q * rout.step;
+    let mut o = 0;
+    while o < oc {
+        let two = o + 1 < oc;
+        let w = &weights[o * n..(o + 2) * n];
+        let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
+        let mut q = 0;
+        while q < rin.positions {
+            let pair = q + 1 < rin.positions;
+            let x = &line[q * step..];
+            // The unpaired last position reuses its own window as the second one.
+            let acc = dot2x2(x, if pair { step } else { 0 }, w, n, [b0, b0, b1, b1]);
+            let [a00, a01, a10, a11] = acc;
+            store(out, at(o, q), rq[o].apply(a00), relu, skip);
+            if pair {
+                store(out, at(o, q + 1), rq[o].apply(a01), relu, skip);
+            }
+            if two {
+                store(out, at(o + 1, q), rq[o + 1].apply(a10), relu, skip);
+                if pair {
+                    store(out, at(o + 1, q + 1), rq[o + 1].apply(a11), relu, skip);
+                }
+            }
+            q += 2;
+        }
+        o += 2;
+    }
+}
+
+/// Two i16 weights as one word, `a` in the low half.
+#[inline(always)]
+fn word(a: i8, b: i8) -> u32 {
+    crate::dsp::pack(a as i16, b as i16)
+}
+
+/// Index of word `k` of channel `o` in the pair-interleaved weight buffer (`n` words per
+/// channel).
+#[inline(always)]
+fn wslot(o: usize, k: usize, n: usize) -> usize {
+    (o / 2) * 2 * n + 2 * k + o % 2
+}
+
+/// Pads an odd channel count's last pair by copying the last channel's words.
+fn pad_pairs(wbuf: &mut [u32], oc: usize, n: usize) {
+    if oc % 2 == 1 {
+        for k in 0..n {
+            wbuf[wslot(oc, k, n)] = wbuf[wslot(oc - 1, k, n)];
+        }
+    }
+}
+
+/// Longest input row the line engine reads (the zero row stands in for padding rows).
+pub const MAX_ROW: usize = 256;
+static ZEROS: [i8; MAX_ROW] = [0; MAX_ROW];
+
+/// Fills the line: for each `v` in `0..vp`, `src(v)` is the input offset of the row that
+/// entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
+/// column `in0` on, the other columns are 0 (padding).
+///
+/// Word by word: entries `2k`, `2k + 1` of every column come from two rows read in step
+/// ([`crate::dsp::pack_rows`]).
+#[inline(always)]
+fn fill(
+    line: &mut [u32],
+    vp: usize,
+    cols: usize,
+    (lo, hi, in0): (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    src: impl Fn(usize) -> Option<usize>,
+) {
+    let vw = vp / 2;
+    if vw == 0 {
+        return;
+    }
+    let words = &mut line[..vw * cols];
+    let len = hi.saturating_sub(lo).min(MAX_ROW);
+    // Padding rows read zeros and add nothing (padding contributes 0, not the offset).
+    let row = |v: usize| match src(v) {
+        Some(base) => (&input[base + in0..base + in0 + len], off),
+        None => (&ZEROS[..len], 0),
+    };
+    for k in 0..vw {
+        let ((ra, oa), (rb, ob)) = (row(2 * k), row(2 * k + 1));
+        for c in 0..lo.min(cols) {
+            words[c * vw + k] = 0;
+        }
+        if len > 0 {
+            crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
+        }
+        for c in (lo + len).min(cols)..cols {
+            words[c * vw + k] = 0;
+        }
+    }
+}
+
+/// Whether the forward convolution fits the engine's buffers.
+pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
+    let [kd, kh, kw] = shape.kernel;
+    let vp = up4(shape.in_channels * kd * kh);
+    let cols = (shape.out_size[2] - 1) * shape.stride[2] + kw;
+    vp <= MAX_V
+        && shape.in_size[2] <= MAX_ROW
+        && vp * cols / 2 <= LINE_WORDS
+        && 2 * kw * vp / 2 <= WEIGHT_WORDS
+        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= 2
+        && shape.out_channels <= MAX_FAST_CHANNELS
+}
+
+/// Output channels per weight group: an even number whose `n` words each fit
+/// [`WEIGHT_WORDS`]. More than two groups (m0) refill the lines too often to beat im2col.
+fn conv_group(n: usize) -> usize {
+    (WEIGHT_WORDS / n.max(1) / 2 * 2).max(2)
+}
+
+/// Forward convolution (validated shape that [`conv_fits`]), requantising with `rq`.
+/// Output channels go in groups whose expanded weights fit [`WEIGHT_WORDS`] (one group for
+/// most layers; each further group refills the lines).
+pub(crate) fn conv<R: Apply>(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    rq: &[R],
+    output: &mut [i8],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [od, oh, ow] = shape.out_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [pd, ph, pw] = shape.padding;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let v_len = ic * kd * kh;
+    let vp = up4(v_len);
+    let cols = (ow - 1) * sw + kw;
+    // Line column c reads input column c − pw.
+    let (lo, hi) = (pw.min(cols), (iw + pw).min(cols));
+    let span = (lo, hi, lo.saturating_sub(pw));
+    let off = params.input_offset as i16;
+    let n = kw * vp / 2;
+    let group = conv_group(n);
+    let wv = |o: usize, kx: usize, v: usize| {
+        if v < v_len {
+            params.weights[(o * v_len + v) * kw + kx]
+        } else {
+            0
+        }
+    };
+    let mut wbuf = [0u32; WEIGHT_WORDS];
+    let mut line = [0u32; LINE_WORDS];
+    let out_plane = od * oh * ow;
+    let rin = RowIn {
+        positions: ow,
+        step: sw * vp / 2,
+        words: n,
+    };
+    let mut o0 = 0;
+    while o0 < oc {
+        let g = group.min(oc - o0);
+        // Weights [o][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
+        for o in 0..g {
+            for kx in 0..kw {
+                for j in 0..vp / 2 {
+                    let k = kx * vp / 2 + j;
+                    wbuf[wslot(o, k, n)] = word(wv(o0 + o, kx, 2 * j), wv(o0 + o, kx, 2 * j + 1));
+                }
+            }
+        }
+        pad_pairs(&mut wbuf, g, n);
+        for z in 0..od {
+            for y in 0..oh {
+                fill(&mut line, vp, cols, span, input, off, |v| {
+                    if v >= v_len {
+                        return None;
+                    }
+                    let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
+                    let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
+                    let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
+                    Some(((i * id + iz) * ih + iy) * iw)
+                });
+                row(
+                    &line,
+                    rin,
+                    &wbuf[..g.div_ceil(2) * 2 * n],
+                    &params.bias[o0..o0 + g],
+                    &rq[o0..o0 + g],
+                    params.relu,
+                    SkipLut::None,
+                    output,
+                    RowOut {
+                        plane: out_plane,
+                        base: o0 * out_plane + (z * oh + y) * ow,
+                        step: 1,
+                    },
+                );
+            }
+        }
+        o0 += g;
+    }
+}
+
+/// [`conv`] with the fast requantisation when the worst-case accumulator `bound` allows it.
+pub(crate) fn run_conv(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    bound: i64,
+    output: &mut [i8],
+) {
+    let oc = shape.out_channels;
+    match fast_requants(params.requant, bound) {
+        Some(f) => conv(shape, input, params, &f[..oc], output),
+        None => conv(shape, input, params, params.requant, output),
+    }
+}
+
+/// Taps of phase `f` on an axis with kernel `k`, stride `s`: `k = f + t·s`, `t < count`.
+#[inline(always)]
+pub(crate) fn phase_taps(k: usize, s: usize, f: usize) -> usize {
+    if f >= k {
+        0
+    } else {
+        (k - f).div_ceil(s)
+    }
+}
+
+/// Line columns the transposed engine needs at most: input columns `−(⌈kw/sw⌉ − 1)` to
+/// the last one any output reaches.
+fn transposed_cols(shape: &ConvShape) -> usize {
+    let (sw, pw) = (shape.stride[2], shape.padding[2]);
+    (shape.out_size[2] - 1 + pw) / sw + shape.kernel[2].div_ceil(sw)
+}
+
+/// Whether the transposed convolution fits the engine's buffers (phase 0 has the most taps;
+/// the x phases' weights, `kw` column taps in all, are held together).
+pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
+    let t = |a: usize| shape.kernel[a].div_ceil(shape.stride[a]);
+    let vp = up4(shape.in_channels * t(0) * t(1));
+    vp <= MAX_V
+        && shape.in_size[2] <= MAX_ROW
+        && vp * transposed_cols(shape) / 2 <= LINE_WORDS
+        && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
+        && shape.out_channels <= MAX_FAST_CHANNELS
+        && shape.stride[2] <= MAX_STRIDE
+}
+
+/// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
+/// phase by phase: outputs with the same `(z + pad) mod stride` on every axis use the same
+/// taps, and along a row of one phase output `bx` reads input columns `bx − c`, a window
+/// of the line buffer like a forward convolution's. The `sw` x phases of a (plane, row)
+/// read the same input rows, so they share one line fill.
+pub(crate) fn transposed<R: Apply>(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    rq: &[R],
+    skip: SkipLut<'_>,
+    output: &mut [i8],
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [od, oh, ow] = shape.out_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [pd, ph, pw] = shape.padding;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let out_plane = od * oh * ow;
+    let off = params.input_offset as i16;
+    // First output coordinate of phase f on an axis, and how many there are.
+    let first = |f: usize, s: usize, p: usize, n: usize| {
+        let z0 = (f + s - p % s) % s;
+        (z0, if z0 < n { (n - z0).div_ceil(s) } else { 0 })
+    };
+    // The line holds input columns ixlo.. (ixlo ≤ 0: the taps left of column 0 are zeros).
+    let ixlo = 1 - kw.div_ceil(sw) as isize;
+    let cols = transposed_cols(shape);
+    let (lo, hi) = (
+        (-ixlo).clamp(0, cols as isize) as usize,
+        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
+    );
+    let span = (lo, hi.max(lo), 0);
+    let mut wbuf = [0u32; WEIGHT_WORDS];
+    let mut line = [0u32; LINE_WORDS];
+    for fz in 0..sd {
+        let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
+        for fy in 0..sh {
+            let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
+            if nz * ny == 0 {
+                continue;
+            }
+            let v_len = ic * tz * ty;
+            let vp = up4(v_len);
+            let vw = vp / 2;
+            // Per x phase: (first x, count, taps, weight offset, first line word).
+            let mut xs = [(0usize, 0usize, 0usize, 0usize, 0usize); MAX_STRIDE];
+            let mut wofs = 0;
+            for (fx, x) in xs.iter_mut().enumerate().take(sw.min(MAX_STRIDE)) {
+                let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
+                // Output x reads input columns bx − (tx − 1) ..= bx, bx = (x + pw) / sw.
+                let bx0 = (x0 + pw) / sw;
+                let start = (bx0 as isize + 1 - tx as isize - ixlo).max(0) as usize * vw;
+                *x = (x0, nx, tx, wofs, start);
+                // Weights [O][c'][v] as i16 pairs: column tap c' reads input column
+                // bx − (tx − 1 − c').
+                let n = tx * vw;
+                let wv = |o: usize, cp: usize, v: usize| {
+                    if v >= v_len {
+                        return 0;
+                    }
+                    let kx = fx + (tx - 1 - cp) * sw;
+                    let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
+                    let (kz, ky) = (fz + a * sd, fy + b * sh);
+                    params.weights[(((i * oc + o) * kd + kz) * kh + ky) * kw + kx]
+                };
+                let wb = &mut wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n];
+                for o in 0..oc {
+                    for cp in 0..tx {
+                        for j in 0..vw {
+                            let k = cp * vw + j;
+                            wb[wslot(o, k, n)] = word(wv(o, cp, 2 * j), wv(o, cp, 2 * j + 1));
+                        }
+                    }
+                }
+                pad_pairs(wb, oc, n);
+                wofs += oc.div_ceil(2) * 2 * n;
+            }
+            for qz in 0..nz {
+                let z = z0 + qz * sd;
+                let bz = (z + pd) / sd;
+                for qy in 0..ny {
+                    let y = y0 + qy * sh;
+                    let by = (y + ph) / sh;
+                    fill(&mut line, vp, cols, span, input, off, |v| {
+                        if v >= v_len {
+                            return None;
+                        }
+                        let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
+                        let iz = bz.checked_sub(a).filter(|&c| c < id)?;
+                        let iy = by.checked_sub(b).filter(|&c| c < ih)?;
+                        Some(((i * id + iz) * ih + iy) * iw)
+                    });
+                    for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
+                        if nx == 0 {
+                            continue;
+                        }
+                        let n = tx * vw;
+                        row(
+                            &line[start..vw * cols],
+                            RowIn {
+                                positions: nx,
+                                step: vw,
+                                words: n,
+                            },
+                            &wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n],
+                            params.bias,
+                            rq,
+                            params.relu,
+                            skip,
+                            output,
+                            RowOut {
+                                plane: out_plane,
+                                base: (z * oh + y) * ow + x0,
+                                step: sw,
+                            },
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// [`transposed`] with the fast requantisation when `bound` allows it and the skip table.
+pub(crate) fn run_transposed(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    bound: i64,
+    skip: &Skip<'_>,
+    output: &mut [i8],
+) {
+    let oc = shape.out_channels;
+    let table = skip_table(skip);
+    let lut = skip_lut(skip, &table);
+    match fast_requants(params.requant, bound) {
+        Some(f) => transposed(shape, input, params, &f[..oc], lut, output),
+        None => transposed(shape, input, params, params.requant, lut, output),
+    }
+}
