@@ -6,10 +6,17 @@
 //! cost net (conv3d_s8, conv_transpose3d_s8 with skips in place) ─► head_soft_argmax_s8 ─► depth
 //! ```
 //!
-//! Memory: the feature net's activations live inside the cost-volume buffer (it is free while
-//! features are computed), skip additions overwrite the tensor they add to in place, and the
-//! head is fused with the soft-argmax so the `1 × E × R × A` logits volume never exists. The
-//! workspace is therefore the cost volume plus the UNet's own intermediate tensors.
+//! Memory: the firmware runs the *streamed* path ([`Workspace`], [`WORKSPACE_LEN`] bytes). The
+//! feature net computes [`FEATURE_CHUNKS`] row chunks per layer from line buffers (MCUNetV2
+//! style) instead of whole activations. The cost volume never exists whole: d1 reads windows
+//! of `kd` cost-volume planes × a tile of rows computed on the fly; u0 is computed one output
+//! plane at a time, its skip (a cost-volume plane, recomputed: the price is one more cost
+//! volume's instructions) written first into the plane buffer and the transposed convolution
+//! added in place; each u0 plane goes straight through the head, which is fused with the
+//! soft-argmax so the `1 × E × R × A` logits volume never exists either. Only d1/u1, d2 and m0
+//! are whole. Sub-volumes carry explicit zero rows/planes where the whole tensor has padding,
+//! which adds exactly 0, so the bits equal those of the plain whole-tensor twin
+//! ([`WholeWorkspace`], [`Model::depth_from_features_whole_probed`]) that tests compare with.
 
 use core::ops::Range;
 
