@@ -6,10 +6,19 @@
 //! cost net (conv3d_s8, conv_transpose3d_s8 with skips in place) ─► head_soft_argmax_s8 ─► depth
 //! ```
 //!
-//! Memory: the feature net's activations live inside the cost-volume buffer (it is free while
-//! features are computed), skip additions overwrite the tensor they add to in place, and the
-//! head is fused with the soft-argmax so the `1 × E × R × A` logits volume never exists. The
-//! workspace is therefore the cost volume plus the UNet's own intermediate tensors.
+//! Memory: the firmware runs the *streamed* path ([`Workspace`], [`WORKSPACE_LEN`] bytes). The
+//! feature net computes [`FEATURE_CHUNKS`] row chunks per layer from line buffers (MCUNetV2
+//! style) instead of whole activations. The cost volume never exists whole: d1 reads windows
+//! of `kd` cost-volume planes × a tile of rows computed on the fly; u0 is computed one output
+//! plane at a time, its skip (a cost-volume plane, recomputed: the price is one more cost
+//! volume's instructions) written first into the plane buffer and the transposed convolution
+//! added in place; each u0 plane goes straight through the head, which is fused with the
+//! soft-argmax so the `1 × E × R × A` logits volume never exists either. Only d1/u1, d2 and m0
+//! are whole. Sub-volumes carry explicit zero rows/planes where the whole tensor has padding,
+//! which adds exactly 0, so the bits equal those of the plain whole-tensor twin
+//! ([`WholeWorkspace`], [`Model::depth_from_features_whole_probed`]) that tests compare with.
+
+use core::ops::Range;
 
 use fixed::types::U16F16;
 
@@ -156,10 +165,11 @@ const PLAN: ([Region; config::LAYER_COUNT], usize) = {
     (regions, used)
 };
 
-/// Bytes of the UNet buffer.
+/// Bytes of the UNet buffer (d1, d2, m0 for EPSSN-S; u1 writes over d1).
 pub const UNET_BUFFER_LEN: usize = PLAN.1;
 
-/// Bytes of the cost-volume buffer, which also hosts the feature net's activations.
+/// Bytes of the whole-tensor path's cost-volume buffer, which also hosts the feature net's
+/// activations there.
 pub const COST_BUFFER_LEN: usize = {
     let features = config::INPUT_LEN + 2 * config::MAX_FEATURE_ACTIVATION;
     if features > config::COST_VOLUME_LEN {
@@ -182,19 +192,21 @@ const _: () = {
     assert!(FEATURE_LAYERS > 0 && FEATURE_LAYERS < LAYERS.len());
 };
 
-/// Scratch memory of one inference: put it in a `static` (firmware) or a `Box` (host).
-pub struct Workspace {
+/// Scratch of the whole-tensor reference path ([`Model::features_whole_probed`],
+/// [`Model::depth_from_features_whole_probed`]): the full cost volume plus the UNet buffer.
+/// It is the plain twin the streamed [`Workspace`] is tested against; put it in a `Box`.
+pub struct WholeWorkspace {
     cost: [i8; COST_BUFFER_LEN],
     unet: [i8; UNET_BUFFER_LEN],
 }
 
-impl Default for Workspace {
+impl Default for WholeWorkspace {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl Workspace {
+impl WholeWorkspace {
     /// A zeroed workspace.
     pub const fn new() -> Self {
         Self {
@@ -336,12 +348,12 @@ impl<'a> Model<'a> {
         Ok(Self { layers, cost, exp })
     }
 
-    /// Features of one view (`[C][H][W]`, `config::FEATURE_LEN` elements) from its u8 polar
-    /// image (`config::INPUT_LEN`). `probe` sees every layer's output.
-    pub fn features_probed(
+    /// Features of one view through the whole-tensor reference path: every layer's full
+    /// output is materialised and shown to `probe`. Same bits as [`Model::features_probed`].
+    pub fn features_whole_probed(
         &self,
         image: &[u8],
-        ws: &mut Workspace,
+        ws: &mut WholeWorkspace,
         features: &mut [i8],
         mut probe: impl FnMut(&'static str, &[i8]),
     ) -> Result<(), Error> {
@@ -375,24 +387,14 @@ impl<'a> Model<'a> {
         Ok(())
     }
 
-    /// Features of one view; see [`Model::features_probed`].
-    pub fn features(
-        &self,
-        image: &[u8],
-        ws: &mut Workspace,
-        features: &mut [i8],
-    ) -> Result<(), Error> {
-        self.features_probed(image, ws, features, |_, _| {})
-    }
-
-    /// The front depth map (`[E][A]`, metres) from the reference view's features and one or
-    /// two source views' features (view k rolled by k × the baseline). `probe` sees the cost
-    /// volume ("cost") and every cost-net layer's output but the fused head.
-    pub fn depth_from_features_probed(
+    /// The front depth map through the whole-tensor reference path: the full cost volume
+    /// and every cost-net layer's full output exist and are shown to `probe` ("cost", then
+    /// each layer but the fused head). Same bits as [`Model::depth_from_features_probed`].
+    pub fn depth_from_features_whole_probed(
         &self,
         reference: &[i8],
         sources: &[&[i8]],
-        ws: &mut Workspace,
+        ws: &mut WholeWorkspace,
         depth: &mut [U16F16],
         mut probe: impl FnMut(&'static str, &[i8]),
     ) -> Result<(), Error> {
@@ -458,6 +460,468 @@ impl<'a> Model<'a> {
         }
         Ok(())
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Streamed execution (what the firmware runs): no tensor bigger than the UNet's own is ever
+// whole. The feature net runs row chunk by row chunk through line buffers; d1 reads a small
+// window of cost-volume planes and rows computed on the fly; u0 is computed one output plane at
+// a time (its skip, a cost-volume plane, recomputed into the output plane) and fed straight to
+// the fused head. Every kernel call sees a sub-volume with explicit zero rows/planes where the
+// whole tensor has padding, which adds exactly 0 to every accumulator: the bits are those of
+// the whole-tensor path.
+// ---------------------------------------------------------------------------------------------
+
+/// Chunks each feature layer's output is computed in (rows per chunk = output rows / this).
+pub const FEATURE_CHUNKS: usize = 8;
+
+/// Row tiles of d1's output (rows per tile = d1's output rows / this).
+pub const COST_ROW_CHUNKS: usize = 2;
+
+/// Index of d1, the first cost-net layer (reads the cost volume).
+const D1: usize = FEATURE_LAYERS;
+/// Index of the head (last layer, streamed into the depth map).
+const HEAD: usize = config::LAYER_COUNT - 1;
+/// Index of u0, the layer whose skip is the cost volume (just before the head).
+const U0: usize = HEAD - 1;
+
+/// Line buffers of one feature layer: a window of `window_rows` input rows
+/// (`[C_in][window_rows][W_in]`) and one chunk of `rows` output rows (`[C_out][rows][W_out]`).
+#[derive(Clone, Copy, Debug)]
+struct RowStream {
+    rows: usize,
+    window_rows: usize,
+    window_start: usize,
+    chunk_start: usize,
+}
+
+/// Line buffers of every feature layer, packed from offset 0 of the workspace; and their
+/// total length.
+const FEATURE_STREAMS: ([RowStream; FEATURE_LAYERS], usize) = {
+    let empty = RowStream {
+        rows: 0,
+        window_rows: 0,
+        window_start: 0,
+        chunk_start: 0,
+    };
+    let mut s = [empty; FEATURE_LAYERS];
+    let mut used = 0;
+    let mut i = 0;
+    while i < FEATURE_LAYERS {
+        let l = &LAYERS[i];
+        let rows = l.out_size[0] / FEATURE_CHUNKS;
+        let window_rows = l.stride[0] as usize * (rows - 1) + l.kernel[0] as usize;
+        let window_start = used;
+        used += l.in_channels * window_rows * l.in_size[1];
+        let chunk_start = used;
+        used += l.out_channels * rows * l.out_size[1];
+        s[i] = RowStream {
+            rows,
+            window_rows,
+            window_start,
+            chunk_start,
+        };
+        i += 1;
+    }
+    (s, used)
+};
+
+/// Rows per tile of d1's output and the cost-volume rows (`stride·(rows − 1) + kernel`) a
+/// tile reads.
+const D1_ROWS: usize = LAYERS[D1].out_size[1] / COST_ROW_CHUNKS;
+const D1_WINDOW_ROWS: usize =
+    LAYERS[D1].stride[1] as usize * (D1_ROWS - 1) + LAYERS[D1].kernel[1] as usize;
+/// d1's input window `[C][kd][D1_WINDOW_ROWS][W]` and one output tile `[O][1][D1_ROWS][W_out]`.
+const D1_WINDOW_LEN: usize =
+    LAYERS[D1].in_channels * LAYERS[D1].kernel[0] as usize * D1_WINDOW_ROWS * LAYERS[D1].in_size[2];
+const D1_TILE_LEN: usize = LAYERS[D1].out_channels * D1_ROWS * LAYERS[D1].out_size[2];
+
+/// Input planes one output plane of u0 reads: `ceil(kernel / stride)`.
+const U0_MAX_IN_PLANES: usize =
+    (LAYERS[U0].kernel[0] as usize).div_ceil(LAYERS[U0].stride[0] as usize);
+/// One output plane of u0 `[O][1][H][W]` (which first holds the cost-volume plane of its skip),
+/// and u0's input planes gathered for it `[I][U0_MAX_IN_PLANES][H_in][W_in]`.
+const U0_PLANE_LEN: usize =
+    LAYERS[U0].out_channels * LAYERS[U0].out_size[1] * LAYERS[U0].out_size[2];
+const U0_GATHER_LEN: usize =
+    LAYERS[U0].in_channels * U0_MAX_IN_PLANES * LAYERS[U0].in_size[1] * LAYERS[U0].in_size[2];
+
+/// `(first input plane, input planes, padding, output padding)` on the plane axis of the
+/// transposed convolution that gives exactly output plane `t` of u0 from input planes
+/// `first..first + planes` (planes past the end read as zeros): the input planes `i` with a tap
+/// `k = t + pad − stride·i` inside the kernel.
+const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
+    let l = &LAYERS[U0];
+    let (k, s, p) = (
+        l.kernel[0] as usize,
+        l.stride[0] as usize,
+        l.padding[0] as usize,
+    );
+    let last = (t + p) / s;
+    let first = if t + p + 1 >= k {
+        (t + p + 1 - k).div_ceil(s)
+    } else {
+        0
+    };
+    let planes = last + 1 - first;
+    let pad = t + p - s * first;
+    // One output plane: (planes − 1)·s + k + out_pad − 2·pad = 1.
+    let out_pad = 1 + 2 * pad - k - (planes - 1) * s;
+    (first, planes, pad, out_pad)
+}
+
+/// Where the d1/u1 tensor lives: the streamed phases' scratch starts after it.
+const LIVE_END: usize = match (PLAN.0[D1], PLAN.0[U0 - 1]) {
+    (Region::Unet { start, len }, Region::Unet { start: s2, len: l2 }) => {
+        if start + len > s2 + l2 {
+            start + len
+        } else {
+            s2 + l2
+        }
+    }
+    _ => 0,
+};
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Bytes of the streamed [`Workspace`]: the largest of the feature net's line buffers, the
+/// UNet buffer, and the d1/u1 tensor plus the larger of d1's window and u0's plane buffers.
+pub const WORKSPACE_LEN: usize = max(
+    max(FEATURE_STREAMS.1, UNET_BUFFER_LEN),
+    LIVE_END + max(D1_WINDOW_LEN + D1_TILE_LEN, U0_PLANE_LEN + U0_GATHER_LEN),
+);
+
+// The streamed plan's assumptions about the network, checked against the spec at compile time.
+const _: () = {
+    let mut i = 0;
+    while i < FEATURE_LAYERS {
+        let l = &LAYERS[i];
+        let s = &FEATURE_STREAMS.0[i];
+        assert!(s.rows > 0 && s.rows * FEATURE_CHUNKS == l.out_size[0]);
+        assert!(l.in_size[2] == 1 && l.out_size[2] == 1 && l.kernel[2] == 1);
+        assert!(l.padding[0] < l.kernel[0]);
+        if i > 0 {
+            let p = &LAYERS[i - 1];
+            assert!(p.out_channels == l.in_channels);
+            assert!(p.out_size[0] == l.in_size[0] && p.out_size[1] == l.in_size[1]);
+        }
+        i += 1;
+    }
+    assert!(LAYERS[0].input_len() == config::INPUT_LEN);
+    assert!(LAYERS[FEATURE_LAYERS - 1].output_len() == config::FEATURE_LEN);
+    // Padding of the network input is the value −INPUT_OFFSET, which must be an int8.
+    assert!(INPUT_OFFSET == 128);
+    // d1 reads the cost volume and writes to the UNet buffer, one output plane per step.
+    let d1 = &LAYERS[D1];
+    assert!(matches!(d1.kind, LayerKind::Conv3d) && d1.skip.is_none());
+    assert!(d1.in_channels == config::FEATURE_CHANNELS);
+    assert!(d1.input_len() == config::COST_VOLUME_LEN);
+    assert!(d1.in_size[0] == config::PLANES && d1.in_size[1] == config::FEATURE_RANGE_BINS);
+    assert!(D1_ROWS > 0 && D1_ROWS * COST_ROW_CHUNKS == d1.out_size[1]);
+    assert!(d1.padding[0] < d1.kernel[0] && d1.padding[1] < d1.kernel[1]);
+    assert!(matches!(PLAN.0[D1], Region::Unet { .. }));
+    // u0 adds the cost volume and feeds the head; nothing else reads the cost volume.
+    let u0 = &LAYERS[U0];
+    assert!(matches!(u0.kind, LayerKind::ConvTranspose3d));
+    assert!(matches!(PLAN.0[U0], Region::Cost { .. }));
+    assert!(
+        u0.out_channels == config::FEATURE_CHANNELS && u0.output_len() == config::COST_VOLUME_LEN
+    );
+    assert!(u0.out_size[0] == config::PLANES && u0.out_size[1] == config::FEATURE_RANGE_BINS);
+    assert!(matches!(PLAN.0[U0 - 1], Region::Unet { .. }));
+    let mut j = D1;
+    while j < U0 {
+        assert!(matches!(PLAN.0[j], Region::Unet { .. }));
+        j += 1;
+    }
+    let mut t = 0;
+    while t < u0.out_size[0] {
+        let (_, planes, _, out_pad) = u0_plane(t);
+        assert!(planes > 0 && planes <= U0_MAX_IN_PLANES);
+        assert!(out_pad < u0.stride[0] as usize);
+        t += 1;
+    }
+    // The head turns one u0 plane into `kernel[0]` whole depth rows.
+    let head = &LAYERS[HEAD];
+    assert!(head.kernel[0] == head.stride[0] && head.padding[0] == 0);
+    assert!(head.in_size[0] == u0.out_size[0]);
+    assert!(head.out_size[0] * head.out_size[2] == config::DEPTH_LEN);
+    assert!(LIVE_END > 0);
+};
+
+/// Scratch memory of one streamed inference ([`WORKSPACE_LEN`] bytes): put it in a `static`
+/// (firmware) or a `Box` (host). Only scratch: nothing in it survives from one call to the
+/// next.
+pub struct Workspace {
+    buf: [i8; WORKSPACE_LEN],
+}
+
+impl Default for Workspace {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Workspace {
+    /// A zeroed workspace.
+    pub const fn new() -> Self {
+        Self {
+            buf: [0; WORKSPACE_LEN],
+        }
+    }
+
+    /// Bytes of RAM the workspace occupies.
+    pub const BYTES: usize = WORKSPACE_LEN;
+}
+
+/// What a feature layer's line buffers hold: input rows `lo..lo + filled` (virtual rows:
+/// negative or past the end are padding) and which output chunk.
+#[derive(Clone, Copy)]
+struct StreamState {
+    lo: isize,
+    filled: usize,
+    chunk: Option<usize>,
+}
+
+/// `(&buf[a], &mut buf[b])` for disjoint ranges; empty slices (which the kernels refuse with
+/// a length error) if they overlap or leave `buf`, which the compile-time plan rules out.
+fn disjoint(buf: &mut [i8], a: Range<usize>, b: Range<usize>) -> (&[i8], &mut [i8]) {
+    if a.end <= b.start && b.end <= buf.len() {
+        let (x, y) = buf.split_at_mut(b.start);
+        match (x.get(a), y.get_mut(..b.end - b.start)) {
+            (Some(x), Some(y)) => (x, y),
+            _ => (&[], &mut []),
+        }
+    } else if b.end <= a.start && a.end <= buf.len() {
+        let (x, y) = buf.split_at_mut(a.start);
+        match (y.get(..a.end - a.start), x.get_mut(b)) {
+            (Some(y), Some(x)) => (y, x),
+            _ => (&[], &mut []),
+        }
+    } else {
+        (&[], &mut [])
+    }
+}
+
+/// `name` of a fused stage, e.g. "f0+f1+f2+f3" (cut at 32 bytes).
+fn stage_name(prefix: &str, layers: Range<usize>) -> heapless::String<32> {
+    let mut s = heapless::String::new();
+    let _ = s.push_str(prefix);
+    for (n, l) in LAYERS[layers].iter().enumerate() {
+        if n > 0 || !prefix.is_empty() {
+            let _ = s.push('+');
+        }
+        let _ = s.push_str(l.name);
+    }
+    s
+}
+
+impl<'a> Model<'a> {
+    fn soft(&self) -> SoftArgmaxParams<'_> {
+        SoftArgmaxParams {
+            exp: &self.exp,
+            r_min16: U16F16::from_bits(config::R_MIN_Q16),
+            step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
+        }
+    }
+
+    /// Features of one view (`[C][H][W]`, `config::FEATURE_LEN` elements) from its u8 polar
+    /// image (`config::INPUT_LEN`), streamed: each layer computes [`FEATURE_CHUNKS`] chunks of
+    /// output rows from a line buffer of input rows that the layer before fills on demand, so
+    /// no intermediate activation is ever whole. `probe` sees the features once, under the
+    /// name of the fused stage ("f0+f1+f2+f3").
+    pub fn features_probed(
+        &self,
+        image: &[u8],
+        ws: &mut Workspace,
+        features: &mut [i8],
+        mut probe: impl FnMut(&str, &[i8]),
+    ) -> Result<(), Error> {
+        expect_len(config::INPUT_LEN, image.len())?;
+        expect_len(config::FEATURE_LEN, features.len())?;
+        let mut state = [StreamState {
+            lo: 0,
+            filled: 0,
+            chunk: None,
+        }; FEATURE_LAYERS];
+        let last = FEATURE_LAYERS - 1;
+        let l = &LAYERS[last];
+        let s = FEATURE_STREAMS.0[last];
+        let plane = l.out_size[0] * l.out_size[1];
+        let n = s.rows * l.out_size[1];
+        for j in 0..FEATURE_CHUNKS {
+            self.feature_chunk(last, j, image, &mut ws.buf, &mut state)?;
+            for (c, dst) in features.chunks_exact_mut(plane).enumerate() {
+                let src = s.chunk_start + c * n;
+                dst[j * n..(j + 1) * n].copy_from_slice(&ws.buf[src..src + n]);
+            }
+        }
+        probe(&stage_name("", 0..FEATURE_LAYERS), features);
+        Ok(())
+    }
+
+    /// Features of one view; see [`Model::features_probed`].
+    pub fn features(
+        &self,
+        image: &[u8],
+        ws: &mut Workspace,
+        features: &mut [i8],
+    ) -> Result<(), Error> {
+        self.features_probed(image, ws, features, |_, _| {})
+    }
+
+    /// Computes output chunk `j` of feature layer `l` into its chunk buffer, first filling the
+    /// layer's input window with the rows it needs (from the image, padding, or the previous
+    /// layer's chunks, computed on demand).
+    fn feature_chunk(
+        &self,
+        l: usize,
+        j: usize,
+        image: &[u8],
+        buf: &mut [i8],
+        state: &mut [StreamState; FEATURE_LAYERS],
+    ) -> Result<(), Error> {
+        let layer = &LAYERS[l];
+        let s = FEATURE_STREAMS.0[l];
+        let (c_in, h_in, w_in) = (layer.in_channels, layer.in_size[0], layer.in_size[1]);
+        let r = s.window_rows;
+        let need_lo = (layer.stride[0] as usize * j * s.rows) as isize - layer.padding[0] as isize;
+        // Slide the window: keep the rows this chunk shares with the previous one.
+        let st = state[l];
+        let drop = need_lo - st.lo;
+        let mut filled = if drop < 0 || drop as usize >= st.filled {
+            0
+        } else {
+            let d = drop as usize;
+            for c in 0..c_in {
+                let base = s.window_start + c * r * w_in;
+                buf.copy_within(base + d * w_in..base + st.filled * w_in, base);
+            }
+            st.filled - d
+        };
+        let params = layer_params(layer, &self.layers[l], l);
+        // Padding is the value that the input offset turns into 0.
+        let pad = (-params.input_offset) as i8;
+        while filled < r {
+            let row = need_lo + filled as isize;
+            if row < 0 || row as usize >= h_in {
+                for c in 0..c_in {
+                    let at = s.window_start + (c * r + filled) * w_in;
+                    buf[at..at + w_in].fill(pad);
+                }
+                filled += 1;
+                continue;
+            }
+            let row = row as usize;
+            let n = if l == 0 {
+                let n = (r - filled).min(h_in - row);
+                for c in 0..c_in {
+                    let at = s.window_start + (c * r + filled) * w_in;
+                    let from = (c * h_in + row) * w_in;
+                    for (q, &u) in buf[at..at + n * w_in]
+                        .iter_mut()
+                        .zip(&image[from..from + n * w_in])
+                    {
+                        *q = (u ^ 0x80) as i8; // u − INPUT_OFFSET
+                    }
+                }
+                n
+            } else {
+                let p = FEATURE_STREAMS.0[l - 1];
+                let jj = row / p.rows;
+                if state[l - 1].chunk != Some(jj) {
+                    self.feature_chunk(l - 1, jj, image, buf, state)?;
+                }
+                let n = (r - filled).min((jj + 1) * p.rows - row);
+                for c in 0..c_in {
+                    let from = p.chunk_start + (c * p.rows + row - jj * p.rows) * w_in;
+                    let at = s.window_start + (c * r + filled) * w_in;
+                    buf.copy_within(from..from + n * w_in, at);
+                }
+                n
+            };
+            filled += n;
+        }
+        state[l] = StreamState {
+            lo: need_lo,
+            filled,
+            chunk: Some(j),
+        };
+        let mut shape = ConvShape::from(layer);
+        shape.in_size[0] = r;
+        shape.out_size[0] = s.rows;
+        shape.padding[0] = 0;
+        let window = s.window_start..s.window_start + c_in * r * w_in;
+        let chunk = s.chunk_start..s.chunk_start + layer.out_channels * s.rows * layer.out_size[1];
+        let (src, dst) = disjoint(buf, window, chunk);
+        conv2d_s8(&shape, src, &params, dst)?;
+        Ok(())
+    }
+
+    /// The front depth map (`[E][A]`, metres) from the reference view's features and one or
+    /// two source views' features (view k rolled by k × the baseline), streamed: the cost
+    /// volume is never whole. d1 is computed tile by tile from windows of cost-volume planes
+    /// and rows computed on the fly; d2, m0 and u1 run whole (they are small); u0 is computed
+    /// one output plane at a time, its skip (a cost-volume plane) recomputed into that plane,
+    /// and each plane goes straight through the fused head into its depth rows. `probe` sees
+    /// d1 (as "cost+d1"), d2, m0 and u1; the last stage (cost+u0+head) is not probed.
+    pub fn depth_from_features_probed(
+        &self,
+        reference: &[i8],
+        sources: &[&[i8]],
+        ws: &mut Workspace,
+        depth: &mut [U16F16],
+        mut probe: impl FnMut(&str, &[i8]),
+    ) -> Result<(), Error> {
+        if sources.is_empty() || sources.len() > config::MAX_VIEWS - 1 {
+            return Err(Error::SourceCount(sources.len()));
+        }
+        expect_len(config::FEATURE_LEN, reference.len())?;
+        expect_len(config::DEPTH_LEN, depth.len())?;
+        for s in sources {
+            expect_len(config::FEATURE_LEN, s.len())?;
+        }
+        let requant = self.cost[sources.len() - 1];
+        let buf = &mut ws.buf;
+        self.stream_d1(reference, sources, requant, buf)?;
+        let (s, l) = unet_range(PLAN.0[D1]);
+        probe(&stage_name("cost", D1..D1 + 1), &buf[s..s + l]);
+        // The small middle of the UNet, whole tensors in the UNet buffer as planned.
+        let mut input = PLAN.0[D1];
+        for (i, l) in LAYERS.iter().enumerate().take(U0).skip(D1 + 1) {
+            let p = &self.layers[i];
+            let params = layer_params(l, p, i);
+            let shape = ConvShape::from(l);
+            let out = PLAN.0[i];
+            let (a, b) = (unet_range(input), unet_range(out));
+            let (src, dst) = if input == out {
+                (&[][..], &mut [][..])
+            } else {
+                disjoint(buf, a.0..a.0 + a.1, b.0..b.0 + b.1)
+            };
+            match l.kind {
+                LayerKind::Conv3d => conv3d_s8(&shape, src, &params, dst)?,
+                LayerKind::ConvTranspose3d => {
+                    let skip = if l.skip.is_some() {
+                        Skip::InPlace { requant: p.skip }
+                    } else {
+                        Skip::None
+                    };
+                    conv_transpose3d_s8(&shape, src, &params, skip, dst)?
+                }
+                LayerKind::Conv2d => return Err(Error::Kernel(KernelError::NotTwoDimensional)),
+            }
+            probe(l.name, dst);
+            input = out;
+        }
+        self.stream_u0_head(reference, sources, requant, buf, depth)
+    }
 
     /// The front depth map from features; see [`Model::depth_from_features_probed`].
     pub fn depth_from_features(
@@ -468,6 +932,213 @@ impl<'a> Model<'a> {
         depth: &mut [U16F16],
     ) -> Result<(), Error> {
         self.depth_from_features_probed(reference, sources, ws, depth, |_, _| {})
+    }
+
+    /// d1 into its UNet region, [`COST_ROW_CHUNKS`] row tiles at a time: per tile, the window
+    /// of `kd` cost-volume planes slides along the planes (the planes two output planes share
+    /// are kept), and new planes are computed channel by channel for just the tile's rows.
+    fn stream_d1(
+        &self,
+        reference: &[i8],
+        sources: &[&[i8]],
+        requant: Requant,
+        buf: &mut [i8],
+    ) -> Result<(), Error> {
+        let l = &LAYERS[D1];
+        let (kd, sd, pd) = (
+            l.kernel[0] as usize,
+            l.stride[0] as usize,
+            l.padding[0] as isize,
+        );
+        let (sh, ph) = (l.stride[1] as usize, l.padding[1] as isize);
+        let [planes, height, width] = l.in_size;
+        let [out_planes, out_rows, out_width] = l.out_size;
+        let rows = D1_WINDOW_ROWS;
+        let slot = rows * width;
+        let window = LIVE_END..LIVE_END + D1_WINDOW_LEN;
+        let tile = window.end..window.end + D1_TILE_LEN;
+        let (d1_start, _) = unet_range(PLAN.0[D1]);
+        let params = layer_params(l, &self.layers[D1], D1);
+        let mut shape = ConvShape::from(l);
+        shape.in_size = [kd, rows, width];
+        shape.out_size = [1, D1_ROWS, out_width];
+        shape.padding[0] = 0;
+        shape.padding[1] = 0;
+        for y in 0..COST_ROW_CHUNKS {
+            let row_lo = (sh * y * D1_ROWS) as isize - ph;
+            // Cost-volume rows of this tile that exist (the rest is padding: zeros).
+            let r0 = row_lo.max(0) as usize;
+            let r1 = ((row_lo + rows as isize).max(0) as usize).min(height);
+            let (mut lo, mut held) = (0isize, 0usize);
+            for d in 0..out_planes {
+                let need = (sd * d) as isize - pd;
+                let drop = need - lo;
+                held = if drop < 0 || drop as usize >= held {
+                    0
+                } else {
+                    let k = drop as usize;
+                    for c in 0..l.in_channels {
+                        let base = window.start + c * kd * slot;
+                        buf.copy_within(base + k * slot..base + held * slot, base);
+                    }
+                    held - k
+                };
+                lo = need;
+                while held < kd {
+                    let j = lo + held as isize;
+                    for c in 0..l.in_channels {
+                        let at = window.start + (c * kd + held) * slot;
+                        let out = &mut buf[at..at + slot];
+                        if j < 0 || j as usize >= planes || r1 <= r0 {
+                            out.fill(0);
+                            continue;
+                        }
+                        let top = r0 as isize - row_lo;
+                        let (pad_top, rest) = out.split_at_mut(top as usize * width);
+                        pad_top.fill(0);
+                        let (real, pad_bottom) = rest.split_at_mut((r1 - r0) * width);
+                        pad_bottom.fill(0);
+                        let feat = c * height * width;
+                        let span = feat + r0 * width..feat + r1 * width;
+                        cost_plane(
+                            reference,
+                            sources,
+                            &span,
+                            j as usize,
+                            CostShape {
+                                channels: 1,
+                                planes: 1,
+                                height: r1 - r0,
+                                width,
+                            },
+                            requant,
+                            real,
+                        )?;
+                    }
+                    held += 1;
+                }
+                let (src, dst) = disjoint(buf, window.clone(), tile.clone());
+                conv3d_s8(&shape, src, &params, dst)?;
+                let n = D1_ROWS * out_width;
+                for o in 0..l.out_channels {
+                    let at = d1_start + ((o * out_planes + d) * out_rows + y * D1_ROWS) * out_width;
+                    buf.copy_within(tile.start + o * n..tile.start + (o + 1) * n, at);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// u0 one output plane at a time: the plane buffer first receives the cost-volume plane
+    /// (u0's skip), then u0's transposed convolution of just the input planes that reach this
+    /// output plane adds onto it in place, then the fused head turns it into its depth rows.
+    fn stream_u0_head(
+        &self,
+        reference: &[i8],
+        sources: &[&[i8]],
+        requant: Requant,
+        buf: &mut [i8],
+        depth: &mut [U16F16],
+    ) -> Result<(), Error> {
+        let l = &LAYERS[U0];
+        let [in_planes, in_rows, in_width] = l.in_size;
+        let in_plane = in_rows * in_width;
+        let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
+        let plane = LIVE_END..LIVE_END + U0_PLANE_LEN;
+        let params = layer_params(l, &self.layers[U0], U0);
+        let skip = Skip::InPlace {
+            requant: self.layers[U0].skip,
+        };
+        let head = &LAYERS[HEAD];
+        let head_params = layer_params(head, &self.layers[HEAD], HEAD);
+        let mut head_shape = ConvShape::from(head);
+        head_shape.in_size[0] = 1;
+        head_shape.out_size[0] = head.kernel[0] as usize;
+        let depth_rows = head_shape.out_size[0] * head.out_size[2];
+        let soft = self.soft();
+        let features = 0..config::FEATURE_LEN;
+        for (t, depth_t) in depth.chunks_exact_mut(depth_rows).enumerate() {
+            cost_plane(
+                reference,
+                sources,
+                &features,
+                t,
+                CostShape {
+                    planes: 1,
+                    ..CostShape::EPSSN
+                },
+                requant,
+                &mut buf[plane.clone()],
+            )?;
+            let (first, planes, pad, out_pad) = u0_plane(t);
+            let gather = plane.end..plane.end + l.in_channels * planes * in_plane;
+            for c in 0..l.in_channels {
+                for q in 0..planes {
+                    let at = gather.start + (c * planes + q) * in_plane;
+                    if first + q < in_planes {
+                        let from = u1_start + (c * in_planes + first + q) * in_plane;
+                        buf.copy_within(from..from + in_plane, at);
+                    } else {
+                        buf[at..at + in_plane].fill(0);
+                    }
+                }
+            }
+            let mut shape = ConvShape::from(l);
+            shape.in_size[0] = planes;
+            shape.out_size[0] = 1;
+            shape.padding[0] = pad;
+            shape.output_padding[0] = out_pad;
+            let (src, dst) = disjoint(buf, gather, plane.clone());
+            conv_transpose3d_s8(&shape, src, &params, skip, dst)?;
+            head_soft_argmax_s8(
+                &head_shape,
+                &buf[plane.clone()],
+                &head_params,
+                &soft,
+                depth_t,
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Cost-volume plane `j` of the feature elements `span` (one channel's rows, or all of it) of
+/// the reference and every source view.
+fn cost_plane(
+    reference: &[i8],
+    sources: &[&[i8]],
+    span: &Range<usize>,
+    j: usize,
+    shape: CostShape,
+    requant: Requant,
+    out: &mut [i8],
+) -> Result<(), Error> {
+    let w = config::FEATURE_COLUMNS;
+    let mut views = [SourceView {
+        features: &[],
+        warp: &[],
+    }; config::MAX_VIEWS - 1];
+    for (k, (v, s)) in views.iter_mut().zip(sources).enumerate() {
+        *v = SourceView {
+            features: &s[span.clone()],
+            warp: &config::WARP_TABLES[k][j * w..(j + 1) * w],
+        };
+    }
+    cost_volume_s8(
+        &shape,
+        &reference[span.clone()],
+        &views[..sources.len()],
+        requant,
+        out,
+    )?;
+    Ok(())
+}
+
+/// `(start, len)` of a UNet region (an empty range for any other region).
+const fn unet_range(r: Region) -> (usize, usize) {
+    match r {
+        Region::Unet { start, len } => (start, len),
+        _ => (0, 0),
     }
 }
 
@@ -489,7 +1160,7 @@ fn expect_len(expected: usize, actual: usize) -> Result<(), Error> {
     }
 }
 
-fn region(ws: &Workspace, r: Region) -> &[i8] {
+fn region(ws: &WholeWorkspace, r: Region) -> &[i8] {
     match r {
         Region::Cost { start, len } => &ws.cost[start..start + len],
         Region::Unet { start, len } => &ws.unet[start..start + len],
@@ -498,7 +1169,7 @@ fn region(ws: &Workspace, r: Region) -> &[i8] {
 }
 
 /// A layer's input and output slices; the plan never makes them overlap.
-fn regions(ws: &mut Workspace, input: Region, output: Region) -> (&[i8], &mut [i8]) {
+fn regions(ws: &mut WholeWorkspace, input: Region, output: Region) -> (&[i8], &mut [i8]) {
     match (input, output) {
         (Region::Cost { start, len }, Region::Unet { start: o, len: ol }) => {
             (&ws.cost[start..start + len], &mut ws.unet[o..o + ol])

@@ -3,7 +3,7 @@
 //! images, frames of the real ARIS recording and extreme inputs, with 2 and 3 views.
 
 use epssn::config;
-use epssn::model::{Model, Workspace};
+use epssn::model::{Model, WholeWorkspace, Workspace};
 use epssn_tests::{random_float_weights, synthetic_image, Rng};
 use fixed::types::U16F16;
 use host_sim::{floatref, quantise, reference_model};
@@ -22,16 +22,21 @@ fn quantised_blob(seed: u64) -> Vec<u8> {
     quantise::quantise(&weights, &ranges).unwrap().blob
 }
 
-/// Runs the library and the reference on `views` and compares every tensor.
+/// Runs the library's whole-tensor path and its streamed path and the reference on `views`;
+/// compares every tensor the whole path shows, every tensor the streamed path shows, and both
+/// depth maps.
 fn assert_bit_exact(blob: &[u8], views: &[&[u8]], what: &str) -> usize {
     let model = Model::from_blob(blob).unwrap();
+    let mut whole = Box::new(WholeWorkspace::new());
     let mut ws = Box::new(Workspace::new());
     let reference = reference_model::run(blob, views).unwrap();
+    let feature_layers = epssn::model::FEATURE_LAYERS;
+    let last_feature = config::LAYERS[feature_layers - 1].name;
     let mut feats = vec![vec![0i8; config::FEATURE_LEN]; views.len()];
     let mut compared = 0;
     for (v, image) in views.iter().enumerate() {
         model
-            .features_probed(image, &mut ws, &mut feats[v], |name, out| {
+            .features_whole_probed(image, &mut whole, &mut feats[v], |name, out| {
                 assert_eq!(
                     out,
                     &reference.features[v][name][..],
@@ -40,23 +45,59 @@ fn assert_bit_exact(blob: &[u8], views: &[&[u8]], what: &str) -> usize {
                 compared += 1;
             })
             .unwrap();
+        let mut streamed = vec![0i8; config::FEATURE_LEN];
+        let mut stages = 0;
+        model
+            .features_probed(image, &mut ws, &mut streamed, |_, out| {
+                assert_eq!(out, &reference.features[v][last_feature][..]);
+                stages += 1;
+            })
+            .unwrap();
+        assert_eq!(stages, 1);
+        assert_eq!(streamed, feats[v], "{what}: view {v} streamed features");
     }
     let sources: Vec<&[i8]> = feats[1..].iter().map(|f| f.as_slice()).collect();
     let mut depth = vec![U16F16::ZERO; config::DEPTH_LEN];
     model
-        .depth_from_features_probed(&feats[0], &sources, &mut ws, &mut depth, |name, out| {
-            assert_eq!(out, &reference.cost_net[name][..], "{what}: layer {name}");
-            compared += 1;
-        })
+        .depth_from_features_whole_probed(
+            &feats[0],
+            &sources,
+            &mut whole,
+            &mut depth,
+            |name, out| {
+                assert_eq!(out, &reference.cost_net[name][..], "{what}: layer {name}");
+                compared += 1;
+            },
+        )
         .unwrap();
     let bits: Vec<u32> = depth.iter().map(|d| d.to_bits()).collect();
     assert_eq!(bits, reference.depth, "{what}: depth");
     // Every layer was seen: feature layers per view, the cost volume, the cost net but the head.
-    let feature_layers = epssn::model::FEATURE_LAYERS;
     assert_eq!(
         compared,
         views.len() * feature_layers + 1 + config::LAYER_COUNT - feature_layers - 1
     );
+    // The streamed path: the UNet tensors it holds whole (d1 … u1), then the same depth map.
+    let mut streamed = vec![U16F16::ZERO; config::DEPTH_LEN];
+    let mut seen = Vec::new();
+    model
+        .depth_from_features_probed(&feats[0], &sources, &mut ws, &mut streamed, |name, out| {
+            let layer = name.rsplit('+').next().unwrap();
+            assert_eq!(
+                out,
+                &reference.cost_net[layer][..],
+                "{what}: streamed {name}"
+            );
+            seen.push(layer.to_string());
+        })
+        .unwrap();
+    let middle: Vec<String> = config::LAYERS[feature_layers..config::LAYER_COUNT - 2]
+        .iter()
+        .map(|l| l.name.to_string())
+        .collect();
+    assert_eq!(seen, middle, "{what}: streamed stages");
+    let streamed_bits: Vec<u32> = streamed.iter().map(|d| d.to_bits()).collect();
+    assert_eq!(streamed_bits, bits, "{what}: streamed depth");
     // The depth is not degenerate: inside the window, not a single value everywhere.
     let top =
         config::R_MIN_Q16 + (config::DEPTH_RANGE_BINS as u32 - 1) * config::DEPTH_STEP_Q16 + 1;
@@ -148,4 +189,50 @@ fn corrupt_or_mismatched_blobs_are_refused() {
             epssn::blob::BlobError::SpecMismatch { .. }
         ))
     ));
+}
+
+/// The streamed path (line buffers, cost volume never whole) against the whole-tensor twin on
+/// random blobs and random images, with one workspace reused dirty across calls and view
+/// counts, so no result can depend on what an earlier call left in the scratch.
+#[test]
+fn streamed_path_equals_whole_tensor_path() {
+    let mut ws = Box::new(Workspace::new());
+    let mut whole = Box::new(WholeWorkspace::new());
+    for seed in 10..13 {
+        let blob = quantised_blob(seed);
+        let model = Model::from_blob(&blob).unwrap();
+        let mut rng = Rng(seed * 31);
+        let images: Vec<Vec<u8>> = (0..3)
+            .map(|v| {
+                if v == 2 {
+                    (0..config::INPUT_LEN)
+                        .map(|_| rng.next_u64() as u8)
+                        .collect()
+                } else {
+                    synthetic_image(&mut rng, seed as f64 * 0.3 + v as f64 * 0.1)
+                }
+            })
+            .collect();
+        let mut a = vec![vec![0i8; config::FEATURE_LEN]; 3];
+        let mut b = vec![vec![0i8; config::FEATURE_LEN]; 3];
+        for v in 0..3 {
+            model.features(&images[v], &mut ws, &mut a[v]).unwrap();
+            model
+                .features_whole_probed(&images[v], &mut whole, &mut b[v], |_, _| {})
+                .unwrap();
+            assert_eq!(a[v], b[v], "seed {seed} view {v}");
+        }
+        for views in [2, 3] {
+            let sources: Vec<&[i8]> = a[1..views].iter().map(|f| f.as_slice()).collect();
+            let mut d0 = vec![U16F16::ZERO; config::DEPTH_LEN];
+            let mut d1 = vec![U16F16::MAX; config::DEPTH_LEN];
+            model
+                .depth_from_features(&a[0], &sources, &mut ws, &mut d0)
+                .unwrap();
+            model
+                .depth_from_features_whole_probed(&a[0], &sources, &mut whole, &mut d1, |_, _| {})
+                .unwrap();
+            assert_eq!(d0, d1, "seed {seed}, {views} views");
+        }
+    }
 }

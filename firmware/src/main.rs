@@ -160,8 +160,10 @@ fn golden_self_test(
         hprintln!("depth failed: {:?}", e);
         ok = false;
     }
+    // The last streamed stage: each u0 output plane (its cost-volume skip plane recomputed)
+    // straight into the fused head and soft-argmax.
     hprintln!(
-        "layer head+soft-argmax: {} instructions",
+        "layer cost+u0+head+soft-argmax: {} instructions",
         instructions(end - last)
     );
     let mismatches = depth

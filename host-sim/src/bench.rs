@@ -63,10 +63,13 @@ pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
     let (mut macs_total, mut instr_total) = (0u64, 0u64);
     for (name, instr) in &counts {
         let base = name.split(' ').next().unwrap_or(name);
-        let macs = LAYERS
-            .iter()
-            .find(|l| l.name == base || (base == "head+soft-argmax" && l.name == "head"))
-            .map_or(0, |l| l.macs() as u64);
+        // A fused stage ("f0+f1+f2+f3", "cost+d1", "cost+u0+head+soft-argmax") counts the MACs
+        // of every layer it names.
+        let macs: u64 = base
+            .split('+')
+            .filter_map(|part| LAYERS.iter().find(|l| l.name == part))
+            .map(|l| l.macs() as u64)
+            .sum();
         macs_total += macs;
         instr_total += instr;
         let per = if macs > 0 {
@@ -100,6 +103,10 @@ mod tests {
         assert_eq!(
             super::parse_line("layer f0 (view 1): 6939320 instructions"),
             Some(("f0 (view 1)".into(), 6939320))
+        );
+        assert_eq!(
+            super::parse_line("layer cost+u0+head+soft-argmax: 12 instructions"),
+            Some(("cost+u0+head+soft-argmax".into(), 12))
         );
         assert_eq!(super::parse_line("self-test: PASS"), None);
     }
