@@ -3,7 +3,6 @@
 //! instructions the target spent (CMSDK timer ticks × 40, printed by the firmware).
 
 use std::io::Write;
-use std::process::Command;
 
 use anyhow::{bail, Context, Result};
 use epssn::config::LAYERS;
@@ -30,16 +29,7 @@ pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
         Some(p) => p.clone(),
         None => crate::sil::build_firmware()?,
     };
-    let o = Command::new("qemu-system-arm")
-        .args([
-            "-machine",
-            "mps2-an500",
-            "-cpu",
-            "cortex-m7",
-            "-nographic",
-            "-monitor",
-            "none",
-        ])
+    let o = crate::sil::qemu_m7()
         .args([
             "-serial",
             "null",

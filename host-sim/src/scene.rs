@@ -239,9 +239,13 @@ impl Scene {
     }
 }
 
-/// SplitMix64 finaliser: a well-mixed 64-bit hash step.
+/// SplitMix64's state increment (the golden-ratio constant).
+pub const SPLITMIX_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
+
+/// SplitMix64 step as a hash: advances `z` by [`SPLITMIX_GAMMA`] and applies the finaliser.
+/// The generators in `synthetic` and `model` draw from it.
 pub fn mix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = z.wrapping_add(SPLITMIX_GAMMA);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)

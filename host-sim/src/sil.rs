@@ -297,21 +297,30 @@ struct Device {
     timeout: Duration,
 }
 
+/// `qemu-system-arm` on the emulated Cortex-M7 board, no display or monitor; callers add the
+/// serial, semihosting and timing options.
+pub(crate) fn qemu_m7() -> Command {
+    let mut c = Command::new("qemu-system-arm");
+    c.args([
+        "-machine",
+        "mps2-an500",
+        "-cpu",
+        "cortex-m7",
+        "-nographic",
+        "-monitor",
+        "none",
+    ]);
+    c
+}
+
 impl Device {
     fn boot(elf: &Path, timeout: Duration) -> Result<Self> {
         let dir = std::env::temp_dir().join(format!("epssn-sil-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         let sock = dir.join("link.sock");
         let _ = std::fs::remove_file(&sock);
-        let mut qemu = Command::new("qemu-system-arm")
+        let mut qemu = qemu_m7()
             .args([
-                "-machine",
-                "mps2-an500",
-                "-cpu",
-                "cortex-m7",
-                "-nographic",
-                "-monitor",
-                "none",
                 "-semihosting-config",
                 "enable=on,target=native,arg=serve",
                 "-icount",

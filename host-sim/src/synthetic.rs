@@ -12,11 +12,10 @@ pub struct Rng(pub u64);
 impl Rng {
     /// Next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        // SplitMix64: the output is the finaliser of the advanced state.
+        let z = crate::scene::mix64(self.0);
+        self.0 = self.0.wrapping_add(crate::scene::SPLITMIX_GAMMA);
+        z
     }
 
     /// Uniform in [0, 1).
@@ -83,4 +82,19 @@ pub fn synthetic_image(rng: &mut Rng, shift: f64) -> Vec<u8> {
         }
     }
     img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Rng;
+
+    #[test]
+    fn rng_is_splitmix64() {
+        // The published SplitMix64 outputs for seed 0.
+        let mut r = Rng(0);
+        assert_eq!(r.next_u64(), 0xE220_A839_7B1D_CDAF);
+        assert_eq!(r.next_u64(), 0x6E78_9E6A_A1B9_65F4);
+        let mut m = crate::model::SplitMix64::new(0);
+        assert_eq!(m.next_u64(), 0xE220_A839_7B1D_CDAF);
+    }
 }

@@ -936,11 +936,10 @@ impl SplitMix64 {
 
     /// Next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        // SplitMix64: the output is the finaliser of the advanced state.
+        let z = crate::scene::mix64(self.0);
+        self.0 = self.0.wrapping_add(crate::scene::SPLITMIX_GAMMA);
+        z
     }
 
     /// Uniform in [0, 1).
