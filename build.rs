@@ -302,16 +302,27 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     }
     // Soft-argmax depth constants in unsigned Q16.16 metres (docs/QUANTISATION.md).
     let q16 = |x: f64| (x * 65536.0).round() as u32;
+    let step = (spec.range_window.r_max_m - spec.range_window.r_min_m) / (dr as f64 - 1.0);
+    let offset = spec.output.end_bin_offset;
+    check(
+        spec.range_window.r_min_m - offset as f64 * step >= 0.0,
+        "end_bin_offset reaches below zero range",
+    );
     writeln!(
         s,
-        "/// `round(r_min · 2^16)`: depth of soft-argmax bin 0, Q16.16 metres.\npub const R_MIN_Q16: u32 = {};",
-        q16(spec.range_window.r_min_m)
+        "/// `round((r_min − K·step) · 2^16)`: the depth that soft-argmax index 0 stands for\n/// (K = `END_BIN_OFFSET`), Q16.16 metres.\npub const R_MIN_Q16: u32 = {};",
+        q16(spec.range_window.r_min_m - offset as f64 * step)
     )
     .unwrap();
     writeln!(
         s,
         "/// `round((r_max − r_min) / (bins − 1) · 2^16)`: step between soft-argmax bins.\npub const DEPTH_STEP_Q16: u32 = {};",
-        q16((spec.range_window.r_max_m - spec.range_window.r_min_m) / (dr as f64 - 1.0))
+        q16(step)
+    )
+    .unwrap();
+    writeln!(
+        s,
+        "/// Steps by which the end soft-argmax bins reach beyond the window (spec `end_bin_offset`).\npub const END_BIN_OFFSET: u32 = {offset};"
     )
     .unwrap();
     writeln!(

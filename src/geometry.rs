@@ -255,6 +255,25 @@ impl Grid<'_> {
         self.r_min + (self.r_max - self.r_min) * i as f64 / (bins - 1) as f64
     }
 
+    /// The range that soft-argmax bin `i` of `bins` stands for when the end bins reach
+    /// `offset` steps beyond the window (`OutputSpec::end_bin_offset`): the first bin
+    /// `r_min − offset·step`, the last `r_max + offset·step`, the others
+    /// [`depth_bin_value`](Self::depth_bin_value).
+    pub fn depth_bin_weight(&self, i: usize, bins: usize, offset: u16) -> f64 {
+        let v = self.depth_bin_value(i, bins);
+        if bins < 2 {
+            return v;
+        }
+        let reach = offset as f64 * (self.r_max - self.r_min) / (bins - 1) as f64;
+        if i == 0 {
+            v - reach
+        } else if i == bins - 1 {
+            v + reach
+        } else {
+            v
+        }
+    }
+
     /// Elevation of plane (or output row) `j` of `n`, evenly spaced over the aperture with
     /// both ends included (the paper's eq. 3); index 0 is the lowest.
     pub fn elevation(&self, j: usize, n: usize) -> f64 {

@@ -51,7 +51,8 @@ pub struct ModelGrids {
     pub plane_elevations: Vec<f64, MAX_GRID>,
     /// Elevation of each depth-map row.
     pub depth_row_elevations: Vec<f64, MAX_GRID>,
-    /// Range value of each soft-argmax bin, metres (both window ends included).
+    /// Range each soft-argmax bin stands for, metres (the end bins reach `end_bin_offset` steps
+    /// beyond the window).
     pub depth_bin_ranges: Vec<f64, MAX_GRID>,
 }
 
@@ -100,7 +101,9 @@ impl ModelGrids {
             feature_ranges: collect(r / stride, |i| grid.range_bin_centre(i, r / stride))?,
             plane_elevations: collect(n, |j| grid.elevation(j, n))?,
             depth_row_elevations: collect(e, |j| grid.elevation(j, e))?,
-            depth_bin_ranges: collect(dr, |i| grid.depth_bin_value(i, dr))?,
+            depth_bin_ranges: collect(dr, |i| {
+                grid.depth_bin_weight(i, dr, spec.output.end_bin_offset)
+            })?,
             beam_azimuths,
             input_azimuths,
             feature_azimuths,

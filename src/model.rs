@@ -438,6 +438,7 @@ impl<'a> Model<'a> {
                     exp: &self.exp,
                     r_min16: U16F16::from_bits(config::R_MIN_Q16),
                     step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
+                    end_offset: config::END_BIN_OFFSET as u16,
                 };
                 head_soft_argmax_s8(&shape, src, &params, &soft, depth)?;
                 break;
@@ -728,6 +729,7 @@ impl<'a> Model<'a> {
             exp: &self.exp,
             r_min16: U16F16::from_bits(config::R_MIN_Q16),
             step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
+            end_offset: config::END_BIN_OFFSET as u16,
         }
     }
 

@@ -108,6 +108,14 @@ pub struct OutputSpec {
     pub azimuth_columns: u16,
     /// Range bins of the soft-argmax.
     pub range_bins: u16,
+    /// How far, in bin steps, the first and last soft-argmax bins reach beyond the range
+    /// window: bin 0 stands for `r_min − K·step`, bin `R − 1` for `r_max + K·step`, the others
+    /// for their own range; the depth is then clamped to `[r_min, r_max]`. With `K > 0` a ray
+    /// that meets nothing reads exactly `r_max` once most of its mass sits in the last bin,
+    /// instead of needing all of it (a soft-argmax is a mean, so it never reaches an end
+    /// otherwise). 0 (the default) is the plain soft-argmax.
+    #[serde(default)]
+    pub end_bin_offset: u16,
 }
 
 /// Warp table precision.

@@ -42,10 +42,16 @@ fn generated_grids_follow_the_beam_table() {
     let half = 7f64.to_radians();
     assert!((config::PLANE_ELEVATION_RAD[0] + half).abs() < 1e-12);
     assert!((config::PLANE_ELEVATION_RAD[config::PLANES - 1] - half).abs() < 1e-12);
-    assert_eq!(config::DEPTH_BIN_RANGE_M[0], config::R_MIN_M);
-    assert!(
-        (config::DEPTH_BIN_RANGE_M[config::DEPTH_RANGE_BINS - 1] - config::R_MAX_M).abs() < 1e-12
-    );
+    // Interior bins evenly spaced over the window; the end bins reach K steps beyond it.
+    let bins = config::DEPTH_RANGE_BINS;
+    let step = (config::R_MAX_M - config::R_MIN_M) / (bins - 1) as f64;
+    let reach = config::END_BIN_OFFSET as f64 * step;
+    assert!((config::DEPTH_BIN_RANGE_M[0] - (config::R_MIN_M - reach)).abs() < 1e-12);
+    assert!((config::DEPTH_BIN_RANGE_M[bins - 1] - (config::R_MAX_M + reach)).abs() < 1e-12);
+    for i in 1..bins - 1 {
+        let want = config::R_MIN_M + i as f64 * step;
+        assert!((config::DEPTH_BIN_RANGE_M[i] - want).abs() < 1e-12);
+    }
 }
 
 #[test]

@@ -98,10 +98,8 @@ pub fn sample_dirs(root: &Path, split: Split) -> Result<Vec<PathBuf>> {
         let entry = entry?;
         let name = entry.file_name();
         let name = name.to_string_lossy();
-        if entry.file_type()?.is_dir()
-            && name.len() == 6
-            && name.bytes().all(|b| b.is_ascii_digit())
-        {
+        // `Path::is_dir` follows symbolic links: a mixed dataset links other splits' samples.
+        if entry.path().is_dir() && name.len() == 6 && name.bytes().all(|b| b.is_ascii_digit()) {
             out.push(entry.path());
         }
     }

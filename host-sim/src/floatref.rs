@@ -267,7 +267,8 @@ pub fn run_folded(
                 s += p;
                 t += p * config::DEPTH_BIN_RANGE_M[i];
             }
-            trace.depth[row * a + col] = (t / s) as f32;
+            // The end bins may reach beyond the window; the depth is clamped to it.
+            trace.depth[row * a + col] = (t / s).clamp(config::R_MIN_M, config::R_MAX_M) as f32;
         }
     }
     Ok(trace)

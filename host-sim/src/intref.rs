@@ -304,7 +304,11 @@ pub fn exp_table(logit_scale: f64) -> [u16; 256] {
 }
 
 /// Fixed-point soft-argmax of logits `[E][R][A]` along R → depth `[E][A]` as U16F16 bits:
-/// `b16 = (T·2^16 + S/2) / S`, `d16 = r_min16 + (b16·step16 + 2^15) >> 16`.
+/// with the bin index `j_i = i + K` (`j_0 = 0`, `j_{R−1} = R − 1 + 2K`: the end bins reach
+/// `K = end_offset` steps beyond the window), `T = Σ e_i·j_i`, `b16 = (T·2^16 + S/2) / S`,
+/// `d16 = r_min16 + (b16·step16 + 2^15) >> 16`, clamped to the window
+/// `[r_min16 + K·step16, r_min16 + (R − 1 + K)·step16]`.
+#[allow(clippy::too_many_arguments)]
 pub fn soft_argmax(
     logits: &[i8],
     rows: usize,
@@ -313,8 +317,19 @@ pub fn soft_argmax(
     exp: &[u16; 256],
     r_min16: u32,
     step16: u32,
+    end_offset: u32,
 ) -> Vec<u32> {
     assert_eq!(logits.len(), rows * bins * cols);
+    let k = end_offset as u128;
+    let index = |i: usize| -> u128 {
+        if i == 0 {
+            0
+        } else if i == bins - 1 {
+            (bins - 1) as u128 + 2 * k
+        } else {
+            i as u128 + k
+        }
+    };
     let mut depth = Vec::with_capacity(rows * cols);
     for e in 0..rows {
         for a in 0..cols {
@@ -324,15 +339,12 @@ pub fn soft_argmax(
             let m = *ray.iter().max().expect("at least one bin");
             let weights: Vec<u128> = ray.iter().map(|&q| exp[(m - q) as usize] as u128).collect();
             let s: u128 = weights.iter().sum();
-            let t: u128 = weights
-                .iter()
-                .enumerate()
-                .map(|(i, &x)| x * i as u128)
-                .sum();
-            assert!(t < 1 << 32, "T leaves u32");
+            let t: u128 = weights.iter().enumerate().map(|(i, &x)| x * index(i)).sum();
             let b16 = (t * 65536 + s / 2) / s;
             let d = r_min16 as u128 + ((b16 * step16 as u128 + 32768) >> 16);
-            depth.push(u32::try_from(d).expect("depth fits U16F16"));
+            let lo = r_min16 as u128 + k * step16 as u128;
+            let hi = r_min16 as u128 + ((bins - 1) as u128 + k) * step16 as u128;
+            depth.push(u32::try_from(d.clamp(lo, hi)).expect("depth fits U16F16"));
         }
     }
     depth

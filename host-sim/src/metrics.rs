@@ -1,10 +1,11 @@
 //! The paper's depth metrics, point clouds from depth maps, and PLY export.
 //!
-//! - MAE = β / (H·W) · Σ |D̂ − D| with β = 1000 (metres → millimetres). The paper evaluates
-//!   "with its mask": we read H·W as the number of pixels in the ground-truth mask and sum over
-//!   those pixels only, i.e. the mean absolute error over in-window pixels, in mm
-//!   ([`Metrics::mae`]). The unmasked mean over all E × A pixels is reported alongside
-//!   ([`Metrics::mae_all`]) so that neither reading is hidden.
+//! - MAE = β / (H·W) · Σ |D̂ − D| with β = 1000 (metres → millimetres), exactly as the paper's
+//!   formula reads: the sum runs over **all** H × W = E × A pixels, with the labels D clamped
+//!   to `[r_min, r_max]` (a ray that meets nothing reads r_max) ([`Metrics::mae`]; this is the
+//!   figure comparable with the paper's Table I). The mean over the ground-truth mask only
+//!   (in-window pixels) is reported alongside ([`Metrics::mae_masked`]), so that neither
+//!   reading is hidden.
 //! - CD = γ · (mean over p ∈ P of min over q ∈ Q of ‖p − q‖² + mean over q ∈ Q of min over
 //!   p ∈ P of ‖p − q‖²) with γ = 500, in m² × 500: the symmetric chamfer distance between the
 //!   point clouds of the two maps. Both clouds take the pixels of the same (ground-truth) mask,
@@ -31,10 +32,10 @@ pub const CD_SCALE: f64 = 500.0;
 /// Metrics of one predicted depth map against its ground truth.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Metrics {
-    /// The paper's MAE over the mask, mm (NaN for an empty mask).
+    /// The paper's MAE: over every pixel, labels clamped to the window, mm.
     pub mae: f64,
-    /// MAE over every pixel, mm.
-    pub mae_all: f64,
+    /// MAE over the ground-truth mask only, mm (NaN for an empty mask).
+    pub mae_masked: f64,
     /// The paper's chamfer distance (γ = 500), over the masked pixels' points.
     pub cd: f64,
     /// Pixels in the mask.
@@ -140,14 +141,85 @@ pub fn derived_mask(gt: &[f32]) -> Vec<bool> {
         .collect()
 }
 
-/// MAE and CD of `pred` against `gt` over `mask`.
+/// Accuracy of one model over a set of depth maps: each figure's mean and (population)
+/// standard deviation over the maps (NaN figures of a map, e.g. an empty mask, are left out).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Accuracy {
+    /// Maps scored.
+    pub maps: usize,
+    /// Mean of the paper's MAE (all pixels, labels clamped), mm.
+    pub mae: Option<f64>,
+    /// Its standard deviation.
+    pub mae_std: Option<f64>,
+    /// Mean of the MAE over the ground-truth mask, mm.
+    pub mae_masked: Option<f64>,
+    /// Its standard deviation.
+    pub mae_masked_std: Option<f64>,
+    /// Mean of the paper's chamfer distance.
+    pub cd: Option<f64>,
+    /// Its standard deviation.
+    pub cd_std: Option<f64>,
+}
+
+impl Accuracy {
+    /// Mean and standard deviation of every figure of `ms`.
+    pub fn of(ms: &[Metrics]) -> Self {
+        let stat = |f: fn(&Metrics) -> f64| {
+            mean_std(
+                &ms.iter()
+                    .map(f)
+                    .filter(|x| x.is_finite())
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let (mae, mae_std) = stat(|m| m.mae);
+        let (mae_masked, mae_masked_std) = stat(|m| m.mae_masked);
+        let (cd, cd_std) = stat(|m| m.cd);
+        Self {
+            maps: ms.len(),
+            mae,
+            mae_std,
+            mae_masked,
+            mae_masked_std,
+            cd,
+            cd_std,
+        }
+    }
+
+    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s`.
+    pub fn line(&self) -> String {
+        let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
+        if self.mae.is_none() {
+            return "no ground truth".to_string();
+        }
+        format!(
+            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {}",
+            f(self.mae, 2),
+            f(self.mae_std, 2),
+            f(self.mae_masked, 2),
+            f(self.mae_masked_std, 2),
+            f(self.cd, 4),
+            f(self.cd_std, 4)
+        )
+    }
+}
+
+/// Labels clamped to the range window, as the paper's loss and MAE read them.
+pub fn clamp_labels(gt: &[f32]) -> Vec<f32> {
+    gt.iter()
+        .map(|&d| d.clamp(R_MIN_M as f32, R_MAX_M as f32))
+        .collect()
+}
+
+/// MAE (all pixels and masked, labels clamped) and CD of `pred` against `gt` over `mask`.
 pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
-    let mae_masked = mae(pred, gt, Some(mask))?;
-    let mae_all = mae(pred, gt, None)?;
-    let cd = chamfer(&depth_points(pred, mask)?, &depth_points(gt, mask)?)?;
+    let gt = clamp_labels(gt);
+    let mae_masked = mae(pred, &gt, Some(mask))?;
+    let mae_all = mae(pred, &gt, None)?;
+    let cd = chamfer(&depth_points(pred, mask)?, &depth_points(&gt, mask)?)?;
     Ok(Metrics {
-        mae: mae_masked,
-        mae_all,
+        mae: mae_all,
+        mae_masked,
         cd,
         valid_pixels: mask.iter().filter(|m| **m).count(),
         pixels: gt.len(),
@@ -220,8 +292,8 @@ pub fn run(args: &MetricsArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&m)?);
     } else {
         println!(
-            "MAE {:.3} mm (masked, {} of {} pixels; all pixels {:.3} mm)   CD {:.5}",
-            m.mae, m.valid_pixels, m.pixels, m.mae_all, m.cd
+            "MAE {:.3} mm (paper: all {} pixels, labels clamped; masked, {} pixels: {:.3} mm)   CD {:.5}",
+            m.mae, m.pixels, m.valid_pixels, m.mae_masked, m.cd
         );
     }
     Ok(())
@@ -274,6 +346,24 @@ mod tests {
         let m = evaluate(&shifted, &depth, &mask).unwrap();
         assert!((m.cd - 0.1).abs() < 1e-4, "{}", m.cd);
         assert!((m.mae - 10.0).abs() < 1e-3);
+        assert!((m.mae_masked - 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn paper_mae_clamps_labels_and_counts_every_pixel() {
+        // Two pixels: one in the window (error 0.1 m), one whose label lies beyond r_max
+        // (a ray that meets nothing), predicted at r_max: no error once the label is clamped.
+        let gt = [2.5f32, 9.0];
+        let pred = [2.6f32, R_MAX_M as f32];
+        let mut depth = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut label = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut mask = vec![false; DEPTH_LEN];
+        depth[..2].copy_from_slice(&pred);
+        label[..2].copy_from_slice(&gt);
+        mask[0] = true;
+        let m = evaluate(&depth, &label, &mask).unwrap();
+        assert!((m.mae_masked - 100.0).abs() < 1e-3, "{}", m.mae_masked);
+        assert!((m.mae - 100.0 / DEPTH_LEN as f64).abs() < 1e-4, "{}", m.mae);
     }
 
     #[test]

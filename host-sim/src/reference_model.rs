@@ -176,6 +176,7 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         &exp,
         config::R_MIN_Q16,
         config::DEPTH_STEP_Q16,
+        config::END_BIN_OFFSET,
     );
     Ok(trace)
 }

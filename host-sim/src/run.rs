@@ -16,7 +16,7 @@ use fixed::types::U16F16;
 use serde::Serialize;
 
 use crate::aris::ArisReader;
-use crate::metrics::{self, Metrics};
+use crate::metrics::{self, Accuracy, Metrics};
 use crate::{floatref, npy, polar, preview, reference_model, weights};
 
 /// The bundled demo: a simulated ARIS 3000 recording and its ground truth.
@@ -60,19 +60,6 @@ fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
             .parse()
             .map_err(|_| format!("bad frame index {b}"))?,
     ))
-}
-
-/// Accuracy of one model over the pairs with ground truth.
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct Accuracy {
-    /// Mean MAE (paper definition, mm, over the mask).
-    pub mae: Option<f64>,
-    /// Standard deviation of the MAE over pairs.
-    pub mae_std: Option<f64>,
-    /// Mean chamfer distance (paper definition).
-    pub cd: Option<f64>,
-    /// Standard deviation of the CD over pairs.
-    pub cd_std: Option<f64>,
 }
 
 /// One depth map of the run.
@@ -185,27 +172,6 @@ pub fn pair_by_roll(rolls: &[Option<f64>], views: usize) -> Vec<Vec<usize>> {
         }
     }
     out
-}
-
-fn accuracy(ms: &[&Metrics]) -> Accuracy {
-    let (mae, mae_std) = crate::metrics::mean_std(
-        &ms.iter()
-            .map(|m| m.mae)
-            .filter(|x| x.is_finite())
-            .collect::<Vec<_>>(),
-    );
-    let (cd, cd_std) = crate::metrics::mean_std(
-        &ms.iter()
-            .map(|m| m.cd)
-            .filter(|x| x.is_finite())
-            .collect::<Vec<_>>(),
-    );
-    Accuracy {
-        mae,
-        mae_std,
-        cd,
-        cd_std,
-    }
 }
 
 fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
@@ -394,16 +360,16 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         recording: recording.display().to_string(),
         weights: weights_dir.display().to_string(),
         pairs: details.len(),
-        float: accuracy(
+        float: Accuracy::of(
             &details
                 .iter()
-                .filter_map(|d| d.float.as_ref())
+                .filter_map(|d| d.float.clone())
                 .collect::<Vec<_>>(),
         ),
-        int8: accuracy(
+        int8: Accuracy::of(
             &details
                 .iter()
-                .filter_map(|d| d.int8.as_ref())
+                .filter_map(|d| d.int8.clone())
                 .collect::<Vec<_>>(),
         ),
         int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
@@ -424,15 +390,6 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     Ok(())
 }
 
-fn fmt_acc(a: &Accuracy) -> String {
-    match (a.mae, a.mae_std, a.cd, a.cd_std) {
-        (Some(m), Some(ms), Some(c), Some(cs)) => {
-            format!("MAE {m:.2} ± {ms:.2} mm, CD {c:.4} ± {cs:.4}")
-        }
-        _ => "no ground truth".to_string(),
-    }
-}
-
 fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -> Result<()> {
     writeln!(out, "recording: {}", s.recording)?;
     writeln!(out, "weights:   {} ({weights})", s.weights)?;
@@ -446,15 +403,15 @@ fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -
             d.int8_vs_float_mae,
             match (&d.float, &d.int8) {
                 (Some(f), Some(q)) => format!(
-                    ", float MAE {:.2} mm CD {:.4}, int8 MAE {:.2} mm CD {:.4}",
-                    f.mae, f.cd, q.mae, q.cd
+                    ", float MAE {:.2} mm (masked {:.2}) CD {:.4}, int8 MAE {:.2} mm (masked {:.2}) CD {:.4}",
+                    f.mae, f.mae_masked, f.cd, q.mae, q.mae_masked, q.cd
                 ),
                 _ => String::new(),
             }
         )?;
     }
-    writeln!(out, "float:  {}", fmt_acc(&s.float))?;
-    writeln!(out, "int8:   {}", fmt_acc(&s.int8))?;
+    writeln!(out, "float:  {}", s.float.line())?;
+    writeln!(out, "int8:   {}", s.int8.line())?;
     writeln!(
         out,
         "int8 vs float: {:.2} mm mean absolute depth difference",

@@ -182,34 +182,54 @@ fn check_convt(
     want
 }
 
-fn soft_params(exp: &[u16; 256]) -> SoftArgmaxParams<'_> {
-    let (r_min16, step16) = depth_grid();
+fn soft_params(exp: &[u16; 256], end_offset: u32) -> SoftArgmaxParams<'_> {
+    let (r_min16, step16) = depth_grid(end_offset);
     SoftArgmaxParams {
         exp,
         r_min16: U16F16::from_bits(r_min16),
         step16: U16F16::from_bits(step16),
+        end_offset: end_offset as u16,
     }
 }
 
-/// `round(r_min · 2^16)`, `round((r_max − r_min)/(bins − 1) · 2^16)`.
-fn depth_grid() -> (u32, u32) {
+/// `round((r_min − K·step) · 2^16)`, `round(step · 2^16)` with
+/// `step = (r_max − r_min)/(bins − 1)`, from first principles.
+fn depth_grid(end_offset: u32) -> (u32, u32) {
     let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
     (
-        (config::R_MIN_M * 65536.0).round() as u32,
+        ((config::R_MIN_M - end_offset as f64 * step) * 65536.0).round() as u32,
         (step * 65536.0).round() as u32,
     )
 }
 
+#[test]
+fn depth_grid_matches_the_build() {
+    let k = config::END_BIN_OFFSET;
+    assert_eq!(depth_grid(k), (config::R_MIN_Q16, config::DEPTH_STEP_Q16));
+}
+
 /// Library soft-argmax (optimised, plain) vs reference; returns the depth bits.
 fn check_soft(logits: &[i8], rows: usize, bins: usize, cols: usize, exp: &[u16; 256]) -> Vec<u32> {
-    let (r_min16, step16) = depth_grid();
-    let want = intref::soft_argmax(logits, rows, bins, cols, exp, r_min16, step16);
+    check_soft_k(logits, rows, bins, cols, exp, config::END_BIN_OFFSET)
+}
+
+/// [`check_soft`] with end bins reaching `k` steps beyond the window.
+fn check_soft_k(
+    logits: &[i8],
+    rows: usize,
+    bins: usize,
+    cols: usize,
+    exp: &[u16; 256],
+    k: u32,
+) -> Vec<u32> {
+    let (r_min16, step16) = depth_grid(k);
+    let want = intref::soft_argmax(logits, rows, bins, cols, exp, r_min16, step16, k);
     let shape = SoftArgmaxShape {
         rows,
         bins,
         columns: cols,
     };
-    let p = soft_params(exp);
+    let p = soft_params(exp, k);
     let (mut a, mut b) = (
         vec![U16F16::ZERO; rows * cols],
         vec![U16F16::ZERO; rows * cols],
@@ -226,15 +246,16 @@ fn check_soft(logits: &[i8], rows: usize, bins: usize, cols: usize, exp: &[u16; 
 /// its soft-argmax.
 fn check_head(sh: &Shape, input: &[i8], l: &Layer, exp: &[u16; 256], what: &str) -> Vec<u32> {
     let logits = intref::conv_transpose(sh, input, &l.w, &l.b, &l.m, 0, false, None);
-    let (r_min16, step16) = depth_grid();
+    let k = config::END_BIN_OFFSET;
+    let (r_min16, step16) = depth_grid(k);
     let [rows, bins, cols] = sh.n_out;
-    let want = intref::soft_argmax(&logits, rows, bins, cols, exp, r_min16, step16);
+    let want = intref::soft_argmax(&logits, rows, bins, cols, exp, r_min16, step16, k);
     let mut d = vec![U16F16::ZERO; rows * cols];
     head_soft_argmax_s8(
         &conv_shape(sh),
         input,
         &params(l, 0, false),
-        &soft_params(exp),
+        &soft_params(exp, config::END_BIN_OFFSET),
         &mut d,
     )
     .unwrap();
@@ -532,8 +553,10 @@ fn run_network(seed: u64, views: usize) {
         &exp,
     );
     assert_eq!(depth, unfused);
-    let (lo, hi) = depth_grid();
-    assert!(depth.iter().all(|&d| d >= lo && d <= lo + 63 * hi + 1));
+    let k = config::END_BIN_OFFSET;
+    let (base, step) = depth_grid(k);
+    let (lo, hi) = (base + k * step, base + (63 + k) * step);
+    assert!(depth.iter().all(|&d| d >= lo && d <= hi));
 }
 
 #[test]
@@ -656,36 +679,56 @@ fn soft_argmax_on_extreme_logits() {
     );
     let n = rows * bins * cols;
     let exp = intref::exp_table(0.1);
-    let (r_min16, step16) = depth_grid();
-    // All equal (any value): every ray reads the middle of the window.
-    for v in [-128i8, 0, 127] {
-        let d = check_soft(&vec![v; n], rows, bins, cols, &exp);
-        let metres = d[0] as f64 / 65536.0;
+    for k in [0, 1, config::END_BIN_OFFSET, 40] {
+        let (r_min16, step16) = depth_grid(k);
+        // All equal (any value): every ray reads the middle of the window.
+        for v in [-128i8, 0, 127] {
+            let d = check_soft_k(&vec![v; n], rows, bins, cols, &exp, k);
+            let metres = d[0] as f64 / 65536.0;
+            assert!(
+                (metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() < 1e-4,
+                "K {k}: {metres}"
+            );
+            assert!(d.iter().all(|&x| x == d[0]));
+        }
+        // One-hot with the largest gap (EXP underflows to 0): exactly the bin's depth, the
+        // end bins clamped to the window's ends.
+        assert_eq!(exp[255], 0);
+        let mut logits = vec![-128i8; n];
+        for e in 0..rows {
+            for a in 0..cols {
+                let bin = (e * 7 + a * 3) % bins;
+                logits[(e * bins + bin) * cols + a] = 127;
+            }
+        }
+        let d = check_soft_k(&logits, rows, bins, cols, &exp, k);
+        for e in 0..rows {
+            for a in 0..cols {
+                let bin = ((e * 7 + a * 3) % bins) as u32;
+                assert_eq!(d[e * cols + a], r_min16 + (bin + k) * step16, "K {k}");
+            }
+        }
+        // Half the mass in the last bin, half in the one before: K ≥ 1 reads r_max exactly,
+        // K = 0 half a step short.
+        let mut logits = vec![-128i8; n];
+        for e in 0..rows {
+            for a in 0..cols {
+                logits[(e * bins + bins - 1) * cols + a] = 127;
+                logits[(e * bins + bins - 2) * cols + a] = 127;
+            }
+        }
+        let d = check_soft_k(&logits, rows, bins, cols, &exp, k);
+        let top = r_min16 + (bins as u32 - 1 + k) * step16;
+        let want = if k == 0 { top - step16 / 2 } else { top };
         assert!(
-            (metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() < 1e-4,
-            "{metres}"
+            d.iter().all(|&x| x.abs_diff(want) <= 1),
+            "K {k}: {} vs {want}",
+            d[0]
         );
-        assert!(d.iter().all(|&x| x == d[0]));
-    }
-    // One-hot with the largest gap (EXP underflows to 0): exactly the bin's depth.
-    assert_eq!(exp[255], 0);
-    let mut logits = vec![-128i8; n];
-    for e in 0..rows {
-        for a in 0..cols {
-            let bin = (e * 7 + a * 3) % bins;
-            logits[(e * bins + bin) * cols + a] = 127;
+        // Alternating and noise only need to agree.
+        let mut rng = Rng(1 + k as u64);
+        for (_, p) in patterns(&mut rng, n) {
+            check_soft_k(&p, rows, bins, cols, &exp, k);
         }
-    }
-    let d = check_soft(&logits, rows, bins, cols, &exp);
-    for e in 0..rows {
-        for a in 0..cols {
-            let bin = ((e * 7 + a * 3) % bins) as u32;
-            assert_eq!(d[e * cols + a], r_min16 + bin * step16);
-        }
-    }
-    // Alternating and noise only need to agree.
-    let mut rng = Rng(1);
-    for (_, p) in patterns(&mut rng, n) {
-        check_soft(&p, rows, bins, cols, &exp);
     }
 }

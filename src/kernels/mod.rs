@@ -129,8 +129,13 @@ pub enum KernelError {
         /// Bins given.
         bins: usize,
     },
-    /// `r_min16 + (bins − 1) · step16` does not fit U16F16.
+    /// `r_min16 + (bins − 1 + 2K) · step16` does not fit U16F16.
     DepthOverflow,
+    /// The soft-argmax end-bin offset `K` is above [`soft_argmax_s8::MAX_END_OFFSET`].
+    EndOffset {
+        /// The offset given.
+        offset: u16,
+    },
     /// The fused head needs kernel == stride, no padding and one output channel.
     NotStreamableHead,
     /// `input_offset` outside `−MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET`.
@@ -610,6 +615,7 @@ mod no_panic {
                 exp: &exp,
                 r_min16: U16F16::from_bits(rng.next() as u32),
                 step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+                end_offset: rng.below(300) as u16,
             };
             let mut depth = vec![U16F16::ZERO; rng.below(20)];
             let _ = head_soft_argmax_s8(&shape, input, &params, &sp, &mut depth);
@@ -668,6 +674,7 @@ mod no_panic {
             exp: &exp,
             r_min16: U16F16::ZERO,
             step16: U16F16::ZERO,
+            end_offset: 0,
         };
         assert_eq!(soft_argmax_s8(&ss, &[], &sp, &mut []), Ok(()));
     }

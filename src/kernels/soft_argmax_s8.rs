@@ -3,8 +3,11 @@
 //!
 //! Logits `[E][R][A]` int8 (elevation rows, range bins, azimuth columns; the head's output
 //! with its single channel dropped). Per ray: `m = max q_i`, `e_i = EXP[m − q_i]`,
-//! `S = Σ e_i`, `T = Σ e_i·i`, `b16 = (T·2^16 + S/2) / S`,
-//! `d16 = r_min16 + (b16·step16 + 2^15) >> 16` → depth `[E][A]` as [`U16F16`] metres.
+//! `S = Σ e_i`, `T = Σ e_i·j_i` with the bin index `j_i = i + K` except `j_0 = 0` and
+//! `j_{R−1} = R − 1 + 2K` (the end bins reach `K = end_offset` steps beyond the window),
+//! `b16 = (T·2^16 + S/2) / S`, `d16 = r_min16 + (b16·step16 + 2^15) >> 16` clamped to
+//! `[r_min16 + K·step16, r_min16 + (R − 1 + K)·step16]` → depth `[E][A]` as [`U16F16`] metres.
+//! With `K = 0` this is the plain soft-argmax and the clamp never acts.
 //!
 //! Work: `E · A · R` table look-ups and `E · A · R` multiplies, one u64 division per ray.
 
@@ -32,11 +35,17 @@ pub const MAX_BINS: usize = 256;
 pub struct SoftArgmaxParams<'a> {
     /// `EXP[d] = round_half_away(65535 · exp(−d · s_l))`.
     pub exp: &'a [u16; 256],
-    /// `round(r_min · 2^16)`: depth of bin 0.
+    /// `round((r_min − K·step) · 2^16)`: depth of bin index 0.
     pub r_min16: U16F16,
     /// `round((r_max − r_min) / (bins − 1) · 2^16)`: depth step between bins.
     pub step16: U16F16,
+    /// `K`: steps by which the first and last bins reach beyond the window (the spec's
+    /// `end_bin_offset`; at most [`MAX_END_OFFSET`]).
+    pub end_offset: u16,
 }
+
+/// Largest [`SoftArgmaxParams::end_offset`].
+pub const MAX_END_OFFSET: u16 = 256;
 
 fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
     if bins == 0 || bins > MAX_BINS {
@@ -45,8 +54,13 @@ fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError
     if p.exp[0] == 0 {
         return Err(KernelError::ExpTable);
     }
-    // b16 ≤ (bins − 1)·2^16, so this is the largest depth any ray can produce.
-    let max_b16 = ((bins - 1) as u64) << 16;
+    if p.end_offset > MAX_END_OFFSET {
+        return Err(KernelError::EndOffset {
+            offset: p.end_offset,
+        });
+    }
+    // b16 ≤ (bins − 1 + 2K)·2^16, so this is the largest depth any ray can produce.
+    let max_b16 = ((bins - 1 + 2 * p.end_offset as usize) as u64) << 16;
     let top =
         p.r_min16.to_bits() as u64 + ((max_b16 * p.step16.to_bits() as u64 + (1 << 15)) >> 16);
     if top > u32::MAX as u64 {
@@ -55,14 +69,29 @@ fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError
     Ok(())
 }
 
-/// `S`, `T` → depth (the contract's integer formula).
+/// `S`, `T = Σ e_i·i`, the end weights `e_0`, `e_{R−1}` and `R` → depth (the contract's
+/// integer formula, end bins moved out by `K` and the result clamped to the window).
 #[inline(always)]
-fn depth_of(s: u32, t: u32, p: &SoftArgmaxParams<'_>) -> U16F16 {
-    // S ≥ EXP[0] > 0 (checked), so the division is defined.
+fn depth_of(
+    s: u32,
+    t: u32,
+    first: u32,
+    last: u32,
+    bins: usize,
+    p: &SoftArgmaxParams<'_>,
+) -> U16F16 {
+    // S ≥ EXP[0] > 0 (checked), so the division is defined; first ≤ S, and every term
+    // stays far inside u64 (T < 2^32, K ≤ 256, S < 2^24).
     let s64 = s as u64;
-    let b16 = ((t as u64) << 16).wrapping_add(s64 / 2) / s64.max(1);
-    let d = p.r_min16.to_bits() as u64 + ((b16 * p.step16.to_bits() as u64 + (1 << 15)) >> 16);
-    U16F16::from_bits(d as u32)
+    let k = p.end_offset as u64;
+    let t = t as u64 + k * (s64 - first as u64 + last as u64);
+    let b16 = (t << 16).wrapping_add(s64 / 2) / s64.max(1);
+    let step = p.step16.to_bits() as u64;
+    let base = p.r_min16.to_bits() as u64;
+    let d = base + ((b16 * step + (1 << 15)) >> 16);
+    let lo = base + k * step;
+    let hi = base + (bins as u64 - 1 + k) * step;
+    U16F16::from_bits(d.clamp(lo, hi) as u32)
 }
 
 /// Soft-argmax of one ray's logits (at most [`MAX_BINS`], parameters checked).
@@ -75,7 +104,9 @@ fn ray_depth(logits: &[i8], p: &SoftArgmaxParams<'_>) -> U16F16 {
         s += e;
         t += e * i as u32;
     }
-    depth_of(s, t, p)
+    let bins = logits.len();
+    let end = |i: usize| p.exp[(m - logits[i] as i32) as usize] as u32;
+    depth_of(s, t, end(0), end(bins - 1), bins, p)
 }
 
 fn check_shape(
@@ -122,7 +153,9 @@ pub fn soft_argmax_s8_plain(
                 s += ei;
                 t += ei * i as u32;
             }
-            depth[e * columns + a] = depth_of(s, t, params);
+            let first = params.exp[(m - at(0)) as usize] as u32;
+            let last = params.exp[(m - at(bins - 1)) as usize] as u32;
+            depth[e * columns + a] = depth_of(s, t, first, last, bins, params);
         }
     }
     Ok(())
@@ -168,8 +201,18 @@ pub fn soft_argmax_s8(
                     t[k] += ei * i as u32;
                 }
             }
+            let first_row = &plane[a0..a0 + w];
+            let last_row = &plane[(bins - 1) * columns + a0..][..w];
             for k in 0..w {
-                depth[e * columns + a0 + k] = depth_of(s[k], t[k], params);
+                let end = |q: i8| params.exp[(m[k] as i32 - q as i32) as usize] as u32;
+                depth[e * columns + a0 + k] = depth_of(
+                    s[k],
+                    t[k],
+                    end(first_row[k]),
+                    end(last_row[k]),
+                    bins,
+                    params,
+                );
             }
             a0 += w;
         }
@@ -364,7 +407,15 @@ fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
         s += e;
         t += e * i as u32;
     }
-    depth_of(s, t, p)
+    let end = |q: i8| p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
+    depth_of(
+        s,
+        t,
+        end(logits[0]),
+        end(logits[logits.len() - 1]),
+        logits.len(),
+        p,
+    )
 }
 
 /// Fused head, ray by ray, without gather buffers (layers too large for them).
@@ -416,12 +467,14 @@ mod tests {
         core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
     }
 
-    fn epssn_params(exp: &[u16; 256]) -> SoftArgmaxParams<'_> {
+    fn epssn_params(exp: &[u16; 256], end_offset: u16) -> SoftArgmaxParams<'_> {
         let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
+        let base = config::R_MIN_M - end_offset as f64 * step;
         SoftArgmaxParams {
             exp,
-            r_min16: U16F16::from_bits(libm::round(config::R_MIN_M * 65536.0) as u32),
+            r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
             step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
+            end_offset,
         }
     }
 
@@ -435,7 +488,7 @@ mod tests {
                 columns: 1 + rng.below(150),
             };
             let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
-            let p = epssn_params(&exp);
+            let p = epssn_params(&exp, rng.below(12) as u16);
             let n = shape.rows * shape.bins * shape.columns;
             let logits = rng.i8s(n);
             let rays = shape.rows * shape.columns;
@@ -449,7 +502,7 @@ mod tests {
     #[test]
     fn equal_logits_give_the_middle_and_one_hot_gives_the_bin() {
         let exp = exp_table(0.2);
-        let p = epssn_params(&exp);
+        let p = epssn_params(&exp, 0);
         let shape = SoftArgmaxShape {
             rows: 1,
             bins: 64,
@@ -480,7 +533,7 @@ mod tests {
     fn fused_head_equals_conv_transpose_then_soft_argmax() {
         let mut rng = Rng(2024);
         let exp = exp_table(0.05);
-        let p = epssn_params(&exp);
+        let p = epssn_params(&exp, 3);
         let mut shapes = vec![ConvShape::from(&config::LAYER_HEAD)];
         // Too large for the column buffers: the ray-by-ray path.
         shapes.push(ConvShape {
@@ -548,6 +601,7 @@ mod tests {
             exp: &exp,
             r_min16: U16F16::ZERO,
             step16: U16F16::ZERO,
+            end_offset: 0,
         };
         let s = SoftArgmaxShape {
             rows: 1,
@@ -573,6 +627,39 @@ mod tests {
         };
         assert_eq!(
             soft_argmax_s8(&s, &[0, 0], &p2, &mut d),
+            Err(KernelError::DepthOverflow)
+        );
+        let far = SoftArgmaxParams {
+            end_offset: MAX_END_OFFSET + 1,
+            ..p
+        };
+        assert_eq!(
+            soft_argmax_s8(&s, &[0, 0], &far, &mut d),
+            Err(KernelError::EndOffset {
+                offset: MAX_END_OFFSET + 1
+            })
+        );
+        // The end bins' reach counts towards the overflow check.
+        let reach = SoftArgmaxParams {
+            r_min16: U16F16::from_bits(u32::MAX - 250),
+            step16: U16F16::from_bits(100),
+            end_offset: 1,
+            ..p
+        };
+        assert_eq!(
+            soft_argmax_s8(
+                &s,
+                &[0, 0],
+                &SoftArgmaxParams {
+                    end_offset: 0,
+                    ..reach
+                },
+                &mut d
+            ),
+            Ok(())
+        );
+        assert_eq!(
+            soft_argmax_s8(&s, &[0, 0], &reach, &mut d),
             Err(KernelError::DepthOverflow)
         );
         assert!(matches!(

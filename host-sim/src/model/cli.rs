@@ -62,9 +62,10 @@ pub struct TrainArgs {
 /// Arguments of `host-sim eval`.
 #[derive(Args, Debug, Clone)]
 pub struct EvalArgs {
-    /// Weights folder (`model.safetensors`, `spec.json`).
+    /// Weights folder (`model.safetensors`, `spec.json`); default: the model the firmware ships
+    /// (`weights/FIRMWARE_WEIGHTS`).
     #[arg(long)]
-    pub weights: PathBuf,
+    pub weights: Option<PathBuf>,
     /// Simulated data folder (its `test/` split if present, else the folder itself).
     #[arg(long)]
     pub data: PathBuf,
@@ -443,7 +444,11 @@ pub fn int8_depth(
 
 /// Runs `host-sim eval`.
 pub fn eval(args: &EvalArgs) -> Result<()> {
-    let model = FloatModel::load(&args.weights)?;
+    let weights = match &args.weights {
+        Some(w) => w.clone(),
+        None => crate::weights::firmware_weights_dir()?,
+    };
+    let model = FloatModel::load(&weights)?;
     let st = model.statics();
     let views = args.views.unwrap_or(st.spec.baseline.views as usize);
     if !(1..=3).contains(&views) {
@@ -452,12 +457,11 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     let dir = split_dir(&args.data, "test").unwrap_or_else(|| args.data.clone());
     let set = load_dir(&dir, views, st.input_size(), st.output_size(), args.limit)?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
-    let (mut mae, mut cd) = (Vec::new(), Vec::new());
-    let (mut q_mae, mut q_cd, mut q_diff, mut q_diff_mask) =
+    let (mut float_m, mut int8_m, mut q_diff, mut q_diff_mask) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let blob = if args.int8 {
-        std::fs::read(args.weights.join(crate::quantise::BLOB_FILE))
-            .with_context(|| format!("reading the int8 blob in {}", args.weights.display()))?
+        std::fs::read(weights.join(crate::quantise::BLOB_FILE))
+            .with_context(|| format!("reading the int8 blob in {}", weights.display()))?
     } else {
         Vec::new()
     };
@@ -476,13 +480,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             if let Some(q) = &int8 {
                 let dq = int8_depth(q, &s.views, &mut ws)?;
                 let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
-                let m = crate::metrics::evaluate(&dq, &s.depth, &mask)?;
-                if m.mae.is_finite() {
-                    q_mae.push(m.mae);
-                }
-                if m.cd.is_finite() {
-                    q_cd.push(m.cd);
-                }
+                int8_m.push(crate::metrics::evaluate(&dq, &s.depth, &mask)?);
                 let diff: f64 = dq.iter().zip(&d).map(|(a, b)| (a - b).abs() as f64).sum();
                 q_diff.push(1000.0 * diff / dq.len() as f64);
                 let (sum, n) = dq
@@ -497,58 +495,51 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
                     q_diff_mask.push(1000.0 * sum / n as f64);
                 }
             }
-            // The paper's MAE and CD over its mask (host_sim::metrics documents the reading).
+            // The paper's MAE (all pixels, labels clamped), the masked MAE and the CD
+            // (host_sim::metrics documents the exact formulas).
             let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
-            let m = crate::metrics::evaluate(&d, &s.depth, &mask)?;
-            if m.mae.is_finite() {
-                mae.push(m.mae);
-            }
-            if m.cd.is_finite() {
-                cd.push(m.cd);
-            }
+            float_m.push(crate::metrics::evaluate(&d, &s.depth, &mask)?);
         }
     }
-    let (m, sd) = nan_if_none(crate::metrics::mean_std(&mae));
-    let (c, csd) = nan_if_none(crate::metrics::mean_std(&cd));
+    let float = crate::metrics::Accuracy::of(&float_m);
     let int8_json = args.int8.then(|| {
-        let (qm, qsd) = nan_if_none(crate::metrics::mean_std(&q_mae));
-        let (qc, qcsd) = nan_if_none(crate::metrics::mean_std(&q_cd));
         let (dm, _) = nan_if_none(crate::metrics::mean_std(&q_diff));
         let (dmm, _) = nan_if_none(crate::metrics::mean_std(&q_diff_mask));
         serde_json::json!({
-            "mae_mean": qm, "mae_std": qsd, "cd_mean": qc, "cd_std": qcsd,
+            "accuracy": crate::metrics::Accuracy::of(&int8_m),
             "int8_vs_float_mae": dm, "int8_vs_float_mae_mask": dmm,
         })
     });
     if args.json {
+        let mut int8 = serde_json::Value::Null;
+        if let Some(j) = &int8_json {
+            int8 = serde_json::to_value(&j["accuracy"])?;
+            int8["int8_vs_float_mae"] = j["int8_vs_float_mae"].clone();
+            int8["int8_vs_float_mae_mask"] = j["int8_vs_float_mae_mask"].clone();
+        }
         let j = serde_json::json!({
-            "weights": args.weights.display().to_string(),
+            "weights": weights.display().to_string(),
             "data": dir.display().to_string(),
             "views": views,
             "samples": set.len(),
-            "mae_mean": m,
-            "mae_std": sd,
-            "cd_mean": c,
-            "cd_std": csd,
-            "int8": int8_json,
+            "metric": "mae: 1000/(E*A) * sum over all E*A pixels of |pred - clamp(label, r_min, r_max)| (the paper's formula, mm); mae_masked: the same mean over the ground-truth mask; cd: 500 * symmetric chamfer (m^2) over the mask's points",
+            "float": float,
+            "int8": int8,
         });
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
         println!(
             "weights {}  data {}  views {views}  samples {}",
-            args.weights.display(),
+            weights.display(),
             dir.display(),
             set.len()
         );
-        println!("float: MAE {m:.2} ± {sd:.2} mm   CD {c:.4} ± {csd:.4}");
+        println!("float: {}", float.line());
         if let Some(j) = &int8_json {
+            let acc = crate::metrics::Accuracy::of(&int8_m);
             println!(
-                "int8:  MAE {:.2} ± {:.2} mm   CD {:.4} ± {:.4}   int8 vs float {:.2} mm \
-                 ({:.2} mm on the mask)",
-                j["mae_mean"].as_f64().unwrap_or(f64::NAN),
-                j["mae_std"].as_f64().unwrap_or(f64::NAN),
-                j["cd_mean"].as_f64().unwrap_or(f64::NAN),
-                j["cd_std"].as_f64().unwrap_or(f64::NAN),
+                "int8:  {}   int8 vs float {:.2} mm ({:.2} mm on the mask)",
+                acc.line(),
                 j["int8_vs_float_mae"].as_f64().unwrap_or(f64::NAN),
                 j["int8_vs_float_mae_mask"].as_f64().unwrap_or(f64::NAN),
             );

@@ -17,7 +17,8 @@
 //! 5. cost net `spec.cost_net` (Conv3d / ConvTranspose3d, optional BatchNorm, optional ReLU,
 //!    then `+ skip` where the skip names an earlier layer output or `"cost"`); the last layer is
 //!    the head whose output is the logits `[B][1][E][R][A]`;
-//! 6. softmax over R, depth `= Σ_i p_i · depth_bin_ranges[i]` → `[B][E][A]` metres.
+//! 6. softmax over R, depth `= clamp(Σ_i p_i · depth_bin_ranges[i], r_min, r_max)` →
+//!    `[B][E][A]` metres (the end bins may reach beyond the window: `end_bin_offset`).
 //!
 //! # Parameter names (SafeTensors, f32, canonical burn/PyTorch layouts)
 //!
@@ -737,7 +738,12 @@ impl EpssnModel {
         let p = softmax(logits.clone(), 3);
         let bins = Tensor::<1>::from_data(TensorData::new(st.depth_bins.clone(), [r]), &device)
             .reshape([1, 1, 1, r, 1]);
-        let depth = (p.clone() * bins).sum_dim(3).reshape([b, e, a]);
+        // The end bins may reach beyond the window (spec `end_bin_offset`); the depth is
+        // clamped to it, as in the int8 soft-argmax.
+        let depth = (p.clone() * bins)
+            .sum_dim(3)
+            .reshape([b, e, a])
+            .clamp(st.r_min, st.r_max);
         if recording {
             record("prob", p.to_data());
             record("depth", depth.to_data());

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Trains the general model (one model for every scene) into weights/general/ and writes its
+# held-out tables, one per scene.
+#   bash scripts/train-general.sh TRAIN_PER_SCENE TEST_PER_SCENE EPOCHS [DATA_ROOT] [SPEC]
+# HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
+# Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
+# does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
+# the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
+# links to the samples, interleaved scene by scene (sample i of scene k is 3i + k, so the first 64,
+# quantiser, hold every scene). Training never sees a test split; an interrupted run continues
+# with the same command (--resume).
+set -euo pipefail
+train_n=$1 test_n=$2 epochs=$3 root=${4:-/tmp/epssn-data} spec=${5:-weights/epssn-s.json}
+val_n=${VAL_PER_SCENE:-100}
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
+cd "$(dirname "$0")/.."
+scenes=(sphere terrain artificial)
+have() { [ -d "$1/$(printf %06d $(($2 - 1)))" ]; }
+for scene in "${scenes[@]}"; do
+  have "$root/$scene/train" "$train_n" ||
+    "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$root/$scene" --no-preview
+  have "$root/$scene/test" "$test_n" ||
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$test_n" --seed 1 --out "$root/$scene" --no-preview
+  have "$root/$scene-val/test" "$val_n" ||
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$val_n" --seed 2 --out "$root/$scene-val" --no-preview
+done
+mix=$root/general
+rm -rf "$mix" && mkdir -p "$mix/train" "$mix/val"
+link() { # SPLIT_DIR_OF_SCENE... DEST N: sample i of scene k becomes DEST/(3i + k)
+  local dest=$1 n=$2 k
+  for i in $(seq 0 $((n - 1))); do
+    for k in 0 1 2; do
+      ln -s "${srcs[$k]}/$(printf %06d "$i")" "$dest/$(printf %06d $((3 * i + k)))"
+    done
+  done
+}
+srcs=("$root/sphere/train" "$root/terrain/train" "$root/artificial/train"); link "$mix/train" "$train_n"
+srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/test"); link "$mix/val" "$val_n"
+resume=()
+[ -d weights/general/checkpoint ] && resume=(--resume)
+"${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
+  --val-limit $((3 * val_n)) "${resume[@]}"
+"${hs[@]}" quantise --weights weights/general --calib "$mix" --calibration-samples 64 --percentile 99.99 \
+  --search --search-passes 2
+for scene in "${scenes[@]}"; do
+  "${hs[@]}" eval --weights weights/general --data "$root/$scene" --views 2 --json --int8 \
+    >"weights/general/eval-$scene.json"
+done
