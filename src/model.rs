@@ -28,7 +28,8 @@ use crate::kernels::{
     check_layer_bounds, conv2d_s8::conv2d_s8, conv3d_s8::conv3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostShape, cost_volume_s8::SourceView, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::SoftArgmaxParams, ConvParams, ConvShape, KernelError, Skip,
+    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
+    soft_argmax_s8::SoftArgmaxShape, ConvParams, ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -198,7 +199,16 @@ const _: () = {
 pub struct WholeWorkspace {
     cost: [i8; COST_BUFFER_LEN],
     unet: [i8; UNET_BUFFER_LEN],
+    logits: [i8; WHOLE_LOGITS_LEN],
 }
+
+/// The whole `[E][R][A]` logits volume, which the whole-tensor path needs only when the head
+/// is not fused with the soft-argmax.
+const WHOLE_LOGITS_LEN: usize = if HEAD_FUSED {
+    0
+} else {
+    config::DEPTH_LEN * config::DEPTH_RANGE_BINS
+};
 
 impl Default for WholeWorkspace {
     fn default() -> Self {
@@ -212,11 +222,12 @@ impl WholeWorkspace {
         Self {
             cost: [0; COST_BUFFER_LEN],
             unet: [0; UNET_BUFFER_LEN],
+            logits: [0; WHOLE_LOGITS_LEN],
         }
     }
 
     /// Bytes of RAM the workspace occupies.
-    pub const BYTES: usize = COST_BUFFER_LEN + UNET_BUFFER_LEN;
+    pub const BYTES: usize = COST_BUFFER_LEN + UNET_BUFFER_LEN + WHOLE_LOGITS_LEN;
 }
 
 /// Parameters of one layer: int8 weights borrowed from the blob, the rest copied to RAM
@@ -433,14 +444,20 @@ impl<'a> Model<'a> {
             let shape = ConvShape::from(l);
             let out = PLAN.0[i];
             if out == Region::Depth {
-                let src = region(ws, input);
-                let soft = SoftArgmaxParams {
-                    exp: &self.exp,
-                    r_min16: U16F16::from_bits(config::R_MIN_Q16),
-                    step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
-                    end_offset: config::END_BIN_OFFSET as u16,
-                };
-                head_soft_argmax_s8(&shape, src, &params, &soft, depth)?;
+                let soft = self.soft();
+                if HEAD_FUSED {
+                    head_soft_argmax_s8(&shape, region(ws, input), &params, &soft, depth)?;
+                } else {
+                    // The plain twin: the whole logits volume, then the soft-argmax.
+                    let WholeWorkspace { cost, unet, logits } = ws;
+                    let src = match input {
+                        Region::Cost { start, len } => &cost[start..start + len],
+                        Region::Unet { start, len } => &unet[start..start + len],
+                        Region::Depth => &[][..],
+                    };
+                    conv_transpose3d_s8(&shape, src, &params, Skip::None, logits)?;
+                    soft_argmax_s8(&head_soft_shape(config::DEPTH_ROWS), logits, &soft, depth)?;
+                }
                 break;
             }
             let (src, dst) = regions(ws, input, out);
@@ -571,6 +588,51 @@ const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
     (first, planes, pad, out_pad)
 }
 
+/// Whether the head is fused with the soft-argmax ([`head_soft_argmax_s8`]: kernel == stride,
+/// no padding, one output channel, so each logit depends on one input voxel). Otherwise the
+/// streamed path computes it a step at a time (`stream_u0_head`) with the general transposed
+/// convolution and [`soft_argmax_s8`].
+const HEAD_FUSED: bool = {
+    let h = &LAYERS[HEAD];
+    let mut fused = h.out_channels == 1;
+    let mut a = 0;
+    while a < 3 {
+        fused = fused && h.kernel[a] == h.stride[a] && h.padding[a] == 0;
+        fused = fused && h.output_padding[a] == 0;
+        a += 1;
+    }
+    fused
+};
+/// u0 planes a step of the general head reads: `P = ceil(kernel / stride)` on the plane axis.
+const HEAD_IN_PLANES: usize =
+    (LAYERS[HEAD].kernel[0] as usize).div_ceil(LAYERS[HEAD].stride[0] as usize);
+/// Depth rows one step of the general head gives: its plane stride.
+const HEAD_STEP_ROWS: usize = LAYERS[HEAD].stride[0] as usize;
+/// The general head's ring of the last [`HEAD_IN_PLANES`] u0 planes `[C][P][H][W]`, and its
+/// logits `[1][HEAD_STEP_ROWS][R][A]` (which share the u0 plane buffer: the plane has been
+/// copied into the ring by then).
+const HEAD_RING_LEN: usize = if HEAD_FUSED {
+    0
+} else {
+    LAYERS[HEAD].in_channels * HEAD_IN_PLANES * LAYERS[HEAD].in_size[1] * LAYERS[HEAD].in_size[2]
+};
+const HEAD_LOGITS_LEN: usize = if HEAD_FUSED {
+    0
+} else {
+    HEAD_STEP_ROWS * LAYERS[HEAD].out_size[1] * LAYERS[HEAD].out_size[2]
+};
+/// The u0 plane buffer: one u0 output plane, or a step's head logits.
+const U0_SLOT_LEN: usize = max(U0_PLANE_LEN, HEAD_LOGITS_LEN);
+
+/// The soft-argmax shape of `rows` depth rows.
+const fn head_soft_shape(rows: usize) -> SoftArgmaxShape {
+    SoftArgmaxShape {
+        rows,
+        bins: config::DEPTH_RANGE_BINS,
+        columns: config::DEPTH_COLUMNS,
+    }
+}
+
 /// Where the d1/u1 tensor lives: the streamed phases' scratch starts after it.
 const LIVE_END: usize = match (PLAN.0[D1], PLAN.0[U0 - 1]) {
     (Region::Unet { start, len }, Region::Unet { start: s2, len: l2 }) => {
@@ -595,7 +657,11 @@ const fn max(a: usize, b: usize) -> usize {
 /// UNet buffer, and the d1/u1 tensor plus the larger of d1's window and u0's plane buffers.
 pub const WORKSPACE_LEN: usize = max(
     max(FEATURE_STREAMS.1, UNET_BUFFER_LEN),
-    LIVE_END + max(D1_WINDOW_LEN + D1_TILE_LEN, U0_PLANE_LEN + U0_GATHER_LEN),
+    LIVE_END
+        + max(
+            D1_WINDOW_LEN + D1_TILE_LEN,
+            U0_SLOT_LEN + U0_GATHER_LEN + HEAD_RING_LEN,
+        ),
 );
 
 // The streamed plan's assumptions about the network, checked against the spec at compile time.
@@ -648,11 +714,20 @@ const _: () = {
         assert!(out_pad < u0.stride[0] as usize);
         t += 1;
     }
-    // The head turns one u0 plane into `kernel[0]` whole depth rows.
+    // The fused head turns one u0 plane into `kernel[0]` whole depth rows; the general head
+    // turns the last `P` u0 planes into `stride[0]` depth rows, its window starting at plane
+    // padding `stride·(P − 1)` with output padding `stride·P − kernel` (both valid by the
+    // choice of P), so that step t gives rows `stride·t − padding + 0..stride`.
     let head = &LAYERS[HEAD];
-    assert!(head.kernel[0] == head.stride[0] && head.padding[0] == 0);
-    assert!(head.in_size[0] == u0.out_size[0]);
+    assert!(matches!(head.kind, LayerKind::ConvTranspose3d) && head.out_channels == 1);
+    assert!(head.in_size[0] == u0.out_size[0] && head.in_channels == u0.out_channels);
+    assert!(head.in_size[1] == u0.out_size[1] && head.in_size[2] == u0.out_size[2]);
+    assert!(head.out_size[0] == config::DEPTH_ROWS);
+    assert!(head.out_size[1] == config::DEPTH_RANGE_BINS);
+    assert!(head.out_size[2] == config::DEPTH_COLUMNS);
     assert!(head.out_size[0] * head.out_size[2] == config::DEPTH_LEN);
+    assert!(HEAD_STEP_ROWS * HEAD_IN_PLANES >= head.kernel[0] as usize);
+    assert!((head.padding[0] as usize) < HEAD_STEP_ROWS * HEAD_IN_PLANES);
     assert!(LIVE_END > 0);
 };
 
@@ -1033,7 +1108,10 @@ impl<'a> Model<'a> {
 
     /// u0 one output plane at a time: the plane buffer first receives the cost-volume plane
     /// (u0's skip), then u0's transposed convolution of just the input planes that reach this
-    /// output plane adds onto it in place, then the fused head turns it into its depth rows.
+    /// output plane adds onto it in place, then the head turns it into depth rows: the fused
+    /// head its `kernel[0]` rows at once, the general head (an overlapping kernel) the
+    /// `stride[0]` rows whose last input plane this is, from a ring of the last
+    /// `ceil(kernel / stride)` planes (zero planes shifted in past the last one).
     fn stream_u0_head(
         &self,
         reference: &[i8],
@@ -1059,7 +1137,10 @@ impl<'a> Model<'a> {
         let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
         let features = 0..config::FEATURE_LEN;
-        for (t, depth_t) in depth.chunks_exact_mut(depth_rows).enumerate() {
+        let ring = LIVE_END + U0_SLOT_LEN + U0_GATHER_LEN..;
+        let ring = ring.start..ring.start + HEAD_RING_LEN;
+        buf[ring.clone()].fill(0);
+        for t in 0..in_planes {
             cost_plane(
                 reference,
                 sources,
@@ -1073,7 +1154,8 @@ impl<'a> Model<'a> {
                 &mut buf[plane.clone()],
             )?;
             let (first, planes, pad, out_pad) = u0_plane(t);
-            let gather = plane.end..plane.end + l.in_channels * planes * in_plane;
+            let gather = LIVE_END + U0_SLOT_LEN..;
+            let gather = gather.start..gather.start + l.in_channels * planes * in_plane;
             for c in 0..l.in_channels {
                 for q in 0..planes {
                     let at = gather.start + (c * planes + q) * in_plane;
@@ -1092,16 +1174,98 @@ impl<'a> Model<'a> {
             shape.output_padding[0] = out_pad;
             let (src, dst) = disjoint(buf, gather, plane.clone());
             conv_transpose3d_s8(&shape, src, &params, skip, dst)?;
-            head_soft_argmax_s8(
-                &head_shape,
-                &buf[plane.clone()],
-                &head_params,
-                &soft,
-                depth_t,
-            )?;
+            if HEAD_FUSED {
+                let rows = t * depth_rows..(t + 1) * depth_rows;
+                let actual = depth.len();
+                let depth_t = depth.get_mut(rows).ok_or(Error::InputLength {
+                    expected: config::DEPTH_LEN,
+                    actual,
+                })?;
+                head_soft_argmax_s8(
+                    &head_shape,
+                    &buf[plane.clone()],
+                    &head_params,
+                    &soft,
+                    depth_t,
+                )?;
+            } else {
+                self.head_step(buf, ring.clone(), Some(plane.clone()), t, depth)?;
+            }
+        }
+        if !HEAD_FUSED {
+            // Rows whose last input plane lies past u0's last: zero planes shifted in.
+            let mut t = in_planes;
+            while head_step_rows(t).start < config::DEPTH_ROWS as isize {
+                self.head_step(buf, ring.clone(), None, t, depth)?;
+                t += 1;
+            }
         }
         Ok(())
     }
+
+    /// Step `t` of the general (non-fused) head: shifts u0 plane `t` (from `plane`, or zeros)
+    /// into the ring of the last `P` planes, computes the `stride[0]` rows of logits whose last
+    /// input plane is `t` into the plane buffer, and soft-argmaxes those inside the map.
+    fn head_step(
+        &self,
+        buf: &mut [i8],
+        ring: Range<usize>,
+        plane: Option<Range<usize>>,
+        t: usize,
+        depth: &mut [U16F16],
+    ) -> Result<(), Error> {
+        let head = &LAYERS[HEAD];
+        let [_, in_rows, in_width] = head.in_size;
+        let in_plane = in_rows * in_width;
+        for c in 0..head.in_channels {
+            let slot = ring.start + c * HEAD_IN_PLANES * in_plane;
+            buf.copy_within(slot + in_plane..slot + HEAD_IN_PLANES * in_plane, slot);
+            let last = slot + (HEAD_IN_PLANES - 1) * in_plane;
+            match &plane {
+                Some(p) => {
+                    let from = p.start + c * in_plane;
+                    buf.copy_within(from..from + in_plane, last);
+                }
+                None => buf[last..last + in_plane].fill(0),
+            }
+        }
+        let mut shape = ConvShape::from(head);
+        shape.in_size[0] = HEAD_IN_PLANES;
+        shape.out_size[0] = HEAD_STEP_ROWS;
+        shape.padding[0] = HEAD_STEP_ROWS * (HEAD_IN_PLANES - 1);
+        shape.output_padding[0] = HEAD_STEP_ROWS * HEAD_IN_PLANES - head.kernel[0] as usize;
+        let logits = LIVE_END..LIVE_END + HEAD_LOGITS_LEN;
+        let params = layer_params(head, &self.layers[HEAD], HEAD);
+        let (src, dst) = disjoint(buf, ring, logits.clone());
+        conv_transpose3d_s8(&shape, src, &params, Skip::None, dst)?;
+        // Rows of this step (`stride·t − padding + 0..stride`) that lie inside the map.
+        let rows = head_step_rows(t);
+        let lo = rows.start.max(0) as usize;
+        let hi = (rows.end.max(0) as usize).min(config::DEPTH_ROWS);
+        if lo < hi {
+            let skip = lo - rows.start as usize;
+            let row_len = config::DEPTH_RANGE_BINS * config::DEPTH_COLUMNS;
+            let src =
+                &buf[logits.start + skip * row_len..logits.start + (skip + hi - lo) * row_len];
+            let actual = depth.len();
+            let out = depth
+                .get_mut(lo * config::DEPTH_COLUMNS..hi * config::DEPTH_COLUMNS)
+                .ok_or(Error::InputLength {
+                    expected: config::DEPTH_LEN,
+                    actual,
+                })?;
+            soft_argmax_s8(&head_soft_shape(hi - lo), src, &self.soft(), out)?;
+        }
+        Ok(())
+    }
+}
+
+/// Depth rows of the general head's step `t` (may reach outside `0..E`):
+/// `stride·t − padding + 0..stride`.
+const fn head_step_rows(t: usize) -> Range<isize> {
+    let h = &LAYERS[HEAD];
+    let start = (h.stride[0] as usize * t) as isize - h.padding[0] as isize;
+    start..start + HEAD_STEP_ROWS as isize
 }
 
 /// Cost-volume plane `j` of the feature elements `span` (one channel's rows, or all of it) of

@@ -8,6 +8,7 @@ pub mod beams;
 pub mod bench;
 pub mod calibration;
 pub mod dataset;
+pub mod figure;
 pub mod floatref;
 pub mod groundtruth;
 pub mod inspect;

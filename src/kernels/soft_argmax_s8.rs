@@ -534,7 +534,17 @@ mod tests {
         let mut rng = Rng(2024);
         let exp = exp_table(0.05);
         let p = epssn_params(&exp, 3);
-        let mut shapes = vec![ConvShape::from(&config::LAYER_HEAD)];
+        // EPSSN-S's fused head shape (the compiled spec's head may overlap, which is not fused).
+        let mut shapes = vec![ConvShape {
+            in_channels: 8,
+            out_channels: 1,
+            kernel: [2, 1, 4],
+            stride: [2, 1, 4],
+            padding: [0; 3],
+            output_padding: [0; 3],
+            in_size: [16, 64, 16],
+            out_size: [32, 64, 64],
+        }];
         // Too large for the column buffers: the ray-by-ray path.
         shapes.push(ConvShape {
             in_channels: 70,
