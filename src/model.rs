@@ -1140,7 +1140,9 @@ impl<'a> Model<'a> {
         let ring = LIVE_END + U0_SLOT_LEN + U0_GATHER_LEN..;
         let ring = ring.start..ring.start + HEAD_RING_LEN;
         buf[ring.clone()].fill(0);
-        for t in 0..in_planes {
+        // One step per u0 *output* plane (the head's input planes).
+        let out_planes = l.out_size[0];
+        for t in 0..out_planes {
             cost_plane(
                 reference,
                 sources,
@@ -1194,7 +1196,7 @@ impl<'a> Model<'a> {
         }
         if !HEAD_FUSED {
             // Rows whose last input plane lies past u0's last: zero planes shifted in.
-            let mut t = in_planes;
+            let mut t = out_planes;
             while head_step_rows(t).start < config::DEPTH_ROWS as isize {
                 self.head_step(buf, ring.clone(), None, t, depth)?;
                 t += 1;
