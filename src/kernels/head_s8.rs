@@ -293,17 +293,6 @@ fn up4(x: usize) -> usize {
     x.div_ceil(4) * 4
 }
 
-/// The i16 slot of value `k` in a word buffer viewed as i16 (`2j`, `2j + 1` share word `j`,
-/// the even one in the low half as [`crate::dsp::pack`]).
-#[inline(always)]
-const fn slot(k: usize) -> usize {
-    if cfg!(target_endian = "little") {
-        k
-    } else {
-        k ^ 1
-    }
-}
-
 /// Sizes of the optimised kernel.
 #[derive(Clone, Copy)]
 struct Fast {
@@ -433,7 +422,7 @@ fn prepare_weights(shape: &ConvShape, f: &Fast, params: &ConvParams<'_>, wbuf: &
 }
 
 /// Gathers input column `x` (if inside `0..W`, else zeros) of every plane tap and channel
-/// into slot `s` of the range rows' words (offset added).
+/// into slot `s` of the range rows' words (offset added), a channel pair per word.
 #[inline(always)]
 fn gather_column(
     shape: &ConvShape,
@@ -446,23 +435,35 @@ fn gather_column(
 ) {
     let [_, ih, iw] = shape.in_size;
     let ic = shape.in_channels;
-    let slots: &mut [i16] = bytemuck::cast_slice_mut(&mut col[..ih * f.n]);
-    let row = 2 * f.n;
+    let n = f.n;
+    let half_vp = f.vp / 2;
+    let rows = &mut col[..ih * n];
     for j in 0..f.planes {
         let poff = src.at(j);
-        for c in 0..f.vp {
-            let first = slot(2 * (s * f.planes + j) * (f.vp / 2) + c);
-            let dst = slots[first..].iter_mut().step_by(row);
-            match (x, poff) {
-                (Some(x), Some(poff)) if c < ic => {
-                    let from = src.data[c * src.channel + poff + x..].iter().step_by(iw);
-                    for (d, &v) in dst.zip(from) {
-                        *d = v as i16 + off;
+        for m in 0..half_vp {
+            let k = (s * f.planes + j) * half_vp + m;
+            let dst = rows[k..].chunks_mut(n);
+            // Start of channel c's column, if it exists.
+            let start = |c: usize| match (x, poff) {
+                (Some(x), Some(poff)) if c < ic => Some(c * src.channel + poff + x),
+                _ => None,
+            };
+            match (start(2 * m), start(2 * m + 1)) {
+                (Some(a), Some(b)) => {
+                    let ra = src.data[a..].chunks(iw);
+                    let rb = src.data[b..].chunks(iw);
+                    for ((d, va), vb) in dst.zip(ra).zip(rb) {
+                        d[0] = crate::dsp::pack(va[0] as i16 + off, vb[0] as i16 + off);
+                    }
+                }
+                (Some(a), None) => {
+                    for (d, va) in dst.zip(src.data[a..].chunks(iw)) {
+                        d[0] = crate::dsp::pack(va[0] as i16 + off, 0);
                     }
                 }
                 _ => {
                     for d in dst {
-                        *d = 0;
+                        d[0] = 0;
                     }
                 }
             }
