@@ -438,32 +438,32 @@ fn gather_column(
     let n = f.n;
     let half_vp = f.vp / 2;
     let rows = &mut col[..ih * n];
+    let hw = ih * iw;
     for j in 0..f.planes {
         let poff = src.at(j);
         for m in 0..half_vp {
             let k = (s * f.planes + j) * half_vp + m;
-            let dst = rows[k..].chunks_mut(n);
-            // Start of channel c's column, if it exists.
-            let start = |c: usize| match (x, poff) {
-                (Some(x), Some(poff)) if c < ic => Some(c * src.channel + poff + x),
+            // Channel c's plane, if it exists and the column is inside.
+            let plane = |c: usize| match (x, poff) {
+                (Some(_), Some(poff)) if c < ic => Some(&src.data[c * src.channel + poff..][..hw]),
                 _ => None,
             };
-            match (start(2 * m), start(2 * m + 1)) {
-                (Some(a), Some(b)) => {
-                    let ra = src.data[a..].chunks(iw);
-                    let rb = src.data[b..].chunks(iw);
-                    for ((d, va), vb) in dst.zip(ra).zip(rb) {
-                        d[0] = crate::dsp::pack(va[0] as i16 + off, vb[0] as i16 + off);
+            let x = x.unwrap_or(0);
+            match (plane(2 * m), plane(2 * m + 1)) {
+                (Some(pa), Some(pb)) => {
+                    let it = rows.chunks_exact_mut(n);
+                    for ((d, ra), rb) in it.zip(pa.chunks_exact(iw)).zip(pb.chunks_exact(iw)) {
+                        d[k] = crate::dsp::pack(ra[x] as i16 + off, rb[x] as i16 + off);
                     }
                 }
-                (Some(a), None) => {
-                    for (d, va) in dst.zip(src.data[a..].chunks(iw)) {
-                        d[0] = crate::dsp::pack(va[0] as i16 + off, 0);
+                (Some(pa), None) => {
+                    for (d, ra) in rows.chunks_exact_mut(n).zip(pa.chunks_exact(iw)) {
+                        d[k] = crate::dsp::pack(ra[x] as i16 + off, 0);
                     }
                 }
                 _ => {
-                    for d in dst {
-                        d[0] = 0;
+                    for d in rows.chunks_exact_mut(n) {
+                        d[k] = 0;
                     }
                 }
             }
