@@ -540,14 +540,20 @@ fn step_fast<R: Apply>(
                         n,
                         [bias; 4],
                     );
-                    for (k, &a) in acc.iter().enumerate() {
-                        let (half, dy) = (k / 2, k % 2);
-                        if dy == 1 && !two {
-                            continue;
+                    let q = |a: i32| finish(rq.apply(a), params.relu, None);
+                    let [la, lb] = &mut logits;
+                    let i = y * kh + ky;
+                    let (qa, qb) = (q(acc[0]), q(acc[2]));
+                    if let (Some(da), Some(db)) = (la.get_mut(i), lb.get_mut(i)) {
+                        (*da, *db) = (qa, qb);
+                    }
+                    max = [max[0].max(qa), max[1].max(qb)];
+                    if two {
+                        let (qa, qb) = (q(acc[1]), q(acc[3]));
+                        if let (Some(da), Some(db)) = (la.get_mut(i + kh), lb.get_mut(i + kh)) {
+                            (*da, *db) = (qa, qb);
                         }
-                        let q = finish(rq.apply(a), params.relu, None);
-                        logits[half][(y + dy) * kh + ky] = q;
-                        max[half] = max[half].max(q);
+                        max = [max[0].max(qa), max[1].max(qb)];
                     }
                     y += 2;
                 }
