@@ -52,11 +52,13 @@ pub const fn head_step_planes(shape: &ConvShape) -> usize {
 /// Steps that cover every depth row: `t` in `0..head_steps(shape)`, the last one the first
 /// step whose rows reach row `E − 1` (steps past `D − 1` read only absent planes but the
 /// bias and the earlier planes' taps).
+/// Saturates instead of overflowing on shapes the kernels would refuse.
 pub const fn head_steps(shape: &ConvShape) -> usize {
     if shape.stride[0] == 0 || shape.out_size[0] == 0 {
         0
     } else {
-        (shape.out_size[0] - 1 + shape.padding[0]) / shape.stride[0] + 1
+        let last = (shape.out_size[0] - 1).saturating_add(shape.padding[0]) / shape.stride[0];
+        last.saturating_add(1)
     }
 }
 
@@ -779,6 +781,73 @@ mod tests {
             head_s8(&shape, &input, &cp, &soft, &mut got).unwrap();
             assert_eq!(got, want);
         }
+    }
+
+    #[test]
+    fn no_panics_on_random_arguments() {
+        let mut rng = Rng(99);
+        let exp = exp_table(0.1);
+        for _ in 0..3000 {
+            let dim = |rng: &mut Rng| rng.below(5);
+            let shape = ConvShape {
+                in_channels: dim(&mut rng),
+                out_channels: rng.below(3),
+                kernel: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                stride: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                padding: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                output_padding: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                in_size: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                out_size: [
+                    rng.below(12),
+                    if rng.below(50) == 0 {
+                        usize::MAX
+                    } else {
+                        rng.below(12)
+                    },
+                    rng.below(12),
+                ],
+            };
+            let nw = rng.below(200);
+            let w = rng.i8s(nw);
+            let b = [rng.range(-(1 << 31), (1 << 31) - 1) as i32];
+            let r = [crate::requant::Requant {
+                multiplier: rng.next() as i32,
+                shift: rng.range(-40, 40) as i32,
+            }];
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b[..rng.below(2)],
+                requant: &r[..rng.below(2)],
+                input_offset: rng.range(-300, 300) as i32,
+                relu: rng.below(2) == 0,
+            };
+            let soft = SoftArgmaxParams {
+                exp: &exp,
+                r_min16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+                step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+                end_offset: rng.below(300) as u16,
+            };
+            let ni = rng.below(300);
+            let input = rng.i8s(ni);
+            let mut depth = vec![U16F16::ZERO; rng.below(40)];
+            let t = if rng.below(10) == 0 {
+                usize::MAX
+            } else {
+                rng.below(8)
+            };
+            let _ = head_s8(&shape, &input, &cp, &soft, &mut depth);
+            let _ = head_s8_plain(&shape, &input, &cp, &soft, &mut depth);
+            let _ = head_step_s8(&shape, &input, t, &cp, &soft, &mut depth);
+            let _ = head_step_s8_plain(&shape, &input, t, &cp, &soft, &mut depth);
+            let _ = (head_steps(&shape), head_step_planes(&shape));
+        }
+        let huge = ConvShape {
+            padding: [usize::MAX; 3],
+            out_size: [usize::MAX; 3],
+            stride: [1; 3],
+            ..epssn_head()
+        };
+        assert_eq!(head_steps(&huge), usize::MAX);
     }
 
     #[test]
