@@ -27,9 +27,10 @@ use crate::config::{self, LayerKind, LayerShape, LAYERS};
 use crate::kernels::{
     check_layer_bounds, conv2d_s8::conv2d_s8, conv3d_s8::conv3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8, cost_volume_s8::cost_volume_s8,
-    cost_volume_s8::CostShape, cost_volume_s8::SourceView, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
-    soft_argmax_s8::SoftArgmaxShape, ConvParams, ConvShape, KernelError, Skip,
+    cost_volume_s8::CostShape, cost_volume_s8::SourceView, head_s8::head_step_s8,
+    head_s8::head_steps, soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
+    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, ConvParams, ConvShape,
+    KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -590,8 +591,8 @@ const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
 
 /// Whether the head is fused with the soft-argmax ([`head_soft_argmax_s8`]: kernel == stride,
 /// no padding, one output channel, so each logit depends on one input voxel). Otherwise the
-/// streamed path computes it a step at a time (`stream_u0_head`) with the general transposed
-/// convolution and [`soft_argmax_s8`].
+/// streamed path computes it a step at a time (`stream_u0_head`) with the overlapping head
+/// fused with the soft-argmax ([`head_step_s8`]).
 const HEAD_FUSED: bool = {
     let h = &LAYERS[HEAD];
     let mut fused = h.out_channels == 1;
@@ -603,26 +604,18 @@ const HEAD_FUSED: bool = {
     }
     fused
 };
-/// u0 planes a step of the general head reads: `P = ceil(kernel / stride)` on the plane axis.
+/// u0 planes a step of the general head reads: `P = ceil(kernel / stride)` on the plane axis
+/// (as [`crate::kernels::head_s8::head_step_planes`]).
 const HEAD_IN_PLANES: usize =
     (LAYERS[HEAD].kernel[0] as usize).div_ceil(LAYERS[HEAD].stride[0] as usize);
-/// Depth rows one step of the general head gives: its plane stride.
-const HEAD_STEP_ROWS: usize = LAYERS[HEAD].stride[0] as usize;
-/// The general head's ring of the last [`HEAD_IN_PLANES`] u0 planes `[C][P][H][W]`, and its
-/// logits `[1][HEAD_STEP_ROWS][R][A]` (which share the u0 plane buffer: the plane has been
-/// copied into the ring by then).
+/// The general head's ring of the last [`HEAD_IN_PLANES`] u0 planes `[C][P][H][W]`.
 const HEAD_RING_LEN: usize = if HEAD_FUSED {
     0
 } else {
     LAYERS[HEAD].in_channels * HEAD_IN_PLANES * LAYERS[HEAD].in_size[1] * LAYERS[HEAD].in_size[2]
 };
-const HEAD_LOGITS_LEN: usize = if HEAD_FUSED {
-    0
-} else {
-    HEAD_STEP_ROWS * LAYERS[HEAD].out_size[1] * LAYERS[HEAD].out_size[2]
-};
-/// The u0 plane buffer: one u0 output plane, or a step's head logits.
-const U0_SLOT_LEN: usize = max(U0_PLANE_LEN, HEAD_LOGITS_LEN);
+/// The u0 plane buffer: one u0 output plane.
+const U0_SLOT_LEN: usize = U0_PLANE_LEN;
 
 /// The soft-argmax shape of `rows` depth rows.
 const fn head_soft_shape(rows: usize) -> SoftArgmaxShape {
@@ -715,9 +708,8 @@ const _: () = {
         t += 1;
     }
     // The fused head turns one u0 plane into `kernel[0]` whole depth rows; the general head
-    // turns the last `P` u0 planes into `stride[0]` depth rows, its window starting at plane
-    // padding `stride·(P − 1)` with output padding `stride·P − kernel` (both valid by the
-    // choice of P), so that step t gives rows `stride·t − padding + 0..stride`.
+    // (head_step_s8) turns the last `P` u0 planes into the `stride[0]` depth rows
+    // `stride·t − padding + 0..stride` of step t.
     let head = &LAYERS[HEAD];
     assert!(matches!(head.kind, LayerKind::ConvTranspose3d) && head.out_channels == 1);
     assert!(head.in_size[0] == u0.out_size[0] && head.in_channels == u0.out_channels);
@@ -726,8 +718,7 @@ const _: () = {
     assert!(head.out_size[1] == config::DEPTH_RANGE_BINS);
     assert!(head.out_size[2] == config::DEPTH_COLUMNS);
     assert!(head.out_size[0] * head.out_size[2] == config::DEPTH_LEN);
-    assert!(HEAD_STEP_ROWS * HEAD_IN_PLANES >= head.kernel[0] as usize);
-    assert!((head.padding[0] as usize) < HEAD_STEP_ROWS * HEAD_IN_PLANES);
+    assert!(HEAD_IN_PLANES * (head.stride[0] as usize) >= head.kernel[0] as usize);
     assert!(LIVE_END > 0);
 };
 
@@ -1197,7 +1188,7 @@ impl<'a> Model<'a> {
         if !HEAD_FUSED {
             // Rows whose last input plane lies past u0's last: zero planes shifted in.
             let mut t = out_planes;
-            while head_step_rows(t).start < config::DEPTH_ROWS as isize {
+            while t < head_steps(&ConvShape::from(&LAYERS[HEAD])) {
                 self.head_step(buf, ring.clone(), None, t, depth)?;
                 t += 1;
             }
@@ -1206,8 +1197,9 @@ impl<'a> Model<'a> {
     }
 
     /// Step `t` of the general (non-fused) head: shifts u0 plane `t` (from `plane`, or zeros)
-    /// into the ring of the last `P` planes, computes the `stride[0]` rows of logits whose last
-    /// input plane is `t` into the plane buffer, and soft-argmaxes those inside the map.
+    /// into the ring of the last `P` planes and runs [`head_step_s8`], which turns the ring
+    /// into the `stride[0]` depth rows whose last input plane is `t` (those inside the map),
+    /// fused with the soft-argmax.
     fn head_step(
         &self,
         buf: &mut [i8],
@@ -1231,43 +1223,11 @@ impl<'a> Model<'a> {
                 None => buf[last..last + in_plane].fill(0),
             }
         }
-        let mut shape = ConvShape::from(head);
-        shape.in_size[0] = HEAD_IN_PLANES;
-        shape.out_size[0] = HEAD_STEP_ROWS;
-        shape.padding[0] = HEAD_STEP_ROWS * (HEAD_IN_PLANES - 1);
-        shape.output_padding[0] = HEAD_STEP_ROWS * HEAD_IN_PLANES - head.kernel[0] as usize;
-        let logits = LIVE_END..LIVE_END + HEAD_LOGITS_LEN;
         let params = layer_params(head, &self.layers[HEAD], HEAD);
-        let (src, dst) = disjoint(buf, ring, logits.clone());
-        conv_transpose3d_s8(&shape, src, &params, Skip::None, dst)?;
-        // Rows of this step (`stride·t − padding + 0..stride`) that lie inside the map.
-        let rows = head_step_rows(t);
-        let lo = rows.start.max(0) as usize;
-        let hi = (rows.end.max(0) as usize).min(config::DEPTH_ROWS);
-        if lo < hi {
-            let skip = lo - rows.start as usize;
-            let row_len = config::DEPTH_RANGE_BINS * config::DEPTH_COLUMNS;
-            let src =
-                &buf[logits.start + skip * row_len..logits.start + (skip + hi - lo) * row_len];
-            let actual = depth.len();
-            let out = depth
-                .get_mut(lo * config::DEPTH_COLUMNS..hi * config::DEPTH_COLUMNS)
-                .ok_or(Error::InputLength {
-                    expected: config::DEPTH_LEN,
-                    actual,
-                })?;
-            soft_argmax_s8(&head_soft_shape(hi - lo), src, &self.soft(), out)?;
-        }
+        let shape = ConvShape::from(head);
+        head_step_s8(&shape, &buf[ring], t, &params, &self.soft(), depth)?;
         Ok(())
     }
-}
-
-/// Depth rows of the general head's step `t` (may reach outside `0..E`):
-/// `stride·t − padding + 0..stride`.
-const fn head_step_rows(t: usize) -> Range<isize> {
-    let h = &LAYERS[HEAD];
-    let start = (h.stride[0] as usize * t) as isize - h.padding[0] as isize;
-    start..start + HEAD_STEP_ROWS as isize
 }
 
 /// Cost-volume plane `j` of the feature elements `span` (one channel's rows, or all of it) of

@@ -14,8 +14,9 @@ use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
 use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
 use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
 use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
+use epssn::kernels::head_s8::{head_s8, head_step_planes, head_step_s8, head_steps};
 use epssn::kernels::soft_argmax_s8::{
-    head_soft_argmax_s8, soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
+    head_soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
 };
 use epssn::kernels::{ConvParams, ConvShape, Skip};
 use epssn::requant::Requant;
@@ -137,8 +138,9 @@ fn main() -> ! {
             }
         }
     }
-    // The head (fused streaming kernel, or the optimised transposed convolution and soft-argmax for an
-    // overlapping head) vs the plain transposed convolution + plain soft-argmax,
+    // The head (fused streaming kernel, or the overlapping head fused with the soft-argmax on
+    // the whole input and step by step from rings) vs the plain transposed convolution + plain
+    // soft-argmax (round 2: a bias beyond the fast requantisation's range),
     // and the cost volume with the real warp tables, optimised vs plain.
     let exp: [u16; 256] =
         core::array::from_fn(|d| (65535.0 * approx_exp(-(d as f64) * 0.05) + 0.5) as u16);
@@ -150,9 +152,12 @@ fn main() -> ! {
     };
     let head = &config::LAYER_HEAD;
     let hs = ConvShape::from(head);
-    for round in 0..2 {
+    for round in 0..3 {
         rng.fill(&mut w[..head.weight_len()]);
         bias[0] = (rng.next() % 20_001) as i32 - 10_000;
+        if round == 2 {
+            bias[0] = 1 << 30;
+        }
         rq[0] = Requant {
             multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
             shift: -8,
@@ -164,7 +169,7 @@ fn main() -> ! {
             input_offset: 0,
             relu: false,
         };
-        if round == 0 {
+        if round != 1 {
             rng.fill(&mut input[..head.input_len()]);
         } else {
             input[..head.input_len()].fill(127);
@@ -176,21 +181,31 @@ fn main() -> ! {
             bins: config::DEPTH_RANGE_BINS,
             columns: config::DEPTH_COLUMNS,
         };
-        // A head whose kernel equals its stride is fused with the soft-argmax; an overlapping
-        // one runs the optimised transposed convolution, then the optimised soft-argmax.
+        // A head whose kernel equals its stride is fused by head_soft_argmax_s8; any head
+        // (overlapping or not) by head_s8 on the whole input and head_step_s8 step by step
+        // from rings of the last P planes (built in `b`, absent planes filled with garbage).
         let fused = hs.kernel == hs.stride && hs.padding == [0; 3];
-        let r1 = if fused {
+        let mut r1 = if fused {
             head_soft_argmax_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused)
         } else {
-            conv_transpose3d_s8(
-                &hs,
-                &input[..head.input_len()],
-                &p,
-                Skip::None,
-                &mut b[..head.output_len()],
-            )
-            .and_then(|()| soft_argmax_s8(&ss, &b[..head.output_len()], &sp, &mut d_fused))
+            head_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused)
         };
+        let mut d_steps = [U16F16::ZERO; config::DEPTH_LEN];
+        let [planes, rows_in, cols_in] = hs.in_size;
+        let (hw, np) = (rows_in * cols_in, head_step_planes(&hs));
+        let ring_len = hs.in_channels * np * hw;
+        for t in 0..head_steps(&hs) {
+            for c in 0..hs.in_channels {
+                for s in 0..np {
+                    let dst = &mut b[(c * np + s) * hw..][..hw];
+                    match (t + s + 1).checked_sub(np).filter(|&z| z < planes) {
+                        Some(z) => dst.copy_from_slice(&input[(c * planes + z) * hw..][..hw]),
+                        None => dst.fill(-99),
+                    }
+                }
+            }
+            r1 = r1.and(head_step_s8(&hs, &b[..ring_len], t, &p, &sp, &mut d_steps));
+        }
         let r2 = conv_transpose3d_s8_plain(
             &hs,
             &input[..head.input_len()],
@@ -199,7 +214,8 @@ fn main() -> ! {
             &mut a[..head.output_len()],
         );
         let r3 = soft_argmax_s8_plain(&ss, &a[..head.output_len()], &sp, &mut d_plain);
-        let same = r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain;
+        let same =
+            r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain && d_steps == d_plain;
         hprintln!(
             "round {} {} head + soft-argmax: {}",
             round,

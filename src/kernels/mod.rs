@@ -18,6 +18,7 @@ pub mod conv2d_s8;
 pub mod conv3d_s8;
 pub mod conv_transpose3d_s8;
 pub mod cost_volume_s8;
+pub mod head_s8;
 mod line;
 pub mod soft_argmax_s8;
 

@@ -47,7 +47,7 @@ pub struct SoftArgmaxParams<'a> {
 /// Largest [`SoftArgmaxParams::end_offset`].
 pub const MAX_END_OFFSET: u16 = 256;
 
-fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
+pub(super) fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
     if bins == 0 || bins > MAX_BINS {
         return Err(KernelError::RangeBins { bins });
     }
@@ -72,7 +72,7 @@ fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError
 /// `S`, `T = Σ e_i·i`, the end weights `e_0`, `e_{R−1}` and `R` → depth (the contract's
 /// integer formula, end bins moved out by `K` and the result clamped to the window).
 #[inline(always)]
-fn depth_of(
+pub(super) fn depth_of(
     s: u32,
     t: u32,
     first: u32,
@@ -399,7 +399,7 @@ fn head_by_columns<R: Apply>(
 
 /// Soft-argmax of one ray whose maximum logit `m` is known (the contract's sums).
 #[inline(always)]
-fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
+pub(super) fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
     let (mut s, mut t) = (0u32, 0u32);
     for (i, &q) in logits.iter().enumerate() {
         // m ≥ q, so m − q is in 0..=255 and the u8 cast is exact.
