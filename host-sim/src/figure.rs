@@ -30,6 +30,11 @@ pub enum Panel<'a> {
     },
 }
 
+/// Colour of depth-map pixel `i`.
+type Colouring<'a> = Box<dyn Fn(usize) -> [u8; 3] + 'a>;
+/// A colour bar's low and high values, unit and decimals.
+type ColourBar = (f64, f64, &'static str, usize);
+
 /// Pixels per depth-map cell.
 const SCALE: u32 = 4;
 const LEFT: u32 = 44;
@@ -103,7 +108,7 @@ fn panel_width() -> u32 {
 fn draw_panel(img: &mut RgbImage, x0: u32, panel: &Panel<'_>) {
     let (mw, mh) = (DEPTH_COLUMNS as u32 * SCALE, DEPTH_ROWS as u32 * SCALE);
     let (mx, my) = (x0 + LEFT, TOP);
-    let (title, colour, bar): (&str, Box<dyn Fn(usize) -> [u8; 3]>, (f64, f64, &str, usize)) =
+    let (title, colour, bar): (&str, Colouring<'_>, ColourBar) =
         match panel {
             Panel::Depth { title, depth } => (
                 title,
