@@ -108,37 +108,36 @@ fn panel_width() -> u32 {
 fn draw_panel(img: &mut RgbImage, x0: u32, panel: &Panel<'_>) {
     let (mw, mh) = (DEPTH_COLUMNS as u32 * SCALE, DEPTH_ROWS as u32 * SCALE);
     let (mx, my) = (x0 + LEFT, TOP);
-    let (title, colour, bar): (&str, Colouring<'_>, ColourBar) =
-        match panel {
-            Panel::Depth { title, depth } => (
-                title,
-                Box::new(|i| {
-                    let d = depth.get(i).copied().unwrap_or(f32::NAN) as f64;
-                    if d.is_finite() {
-                        turbo((d - R_MIN_M) / (R_MAX_M - R_MIN_M))
-                    } else {
-                        [60, 60, 60]
-                    }
-                }),
-                (R_MIN_M, R_MAX_M, "m", 2),
-            ),
-            Panel::Error {
-                title,
-                error,
-                max_mm,
-            } => (
-                title,
-                Box::new(|i| {
-                    let e = error.get(i).copied().unwrap_or(f32::NAN) as f64 * 1000.0;
-                    if e.is_finite() {
-                        turbo(e / *max_mm as f64)
-                    } else {
-                        [60, 60, 60]
-                    }
-                }),
-                (0.0, *max_mm as f64, "mm", 0),
-            ),
-        };
+    let (title, colour, bar): (&str, Colouring<'_>, ColourBar) = match panel {
+        Panel::Depth { title, depth } => (
+            title,
+            Box::new(|i| {
+                let d = depth.get(i).copied().unwrap_or(f32::NAN) as f64;
+                if d.is_finite() {
+                    turbo((d - R_MIN_M) / (R_MAX_M - R_MIN_M))
+                } else {
+                    [60, 60, 60]
+                }
+            }),
+            (R_MIN_M, R_MAX_M, "m", 2),
+        ),
+        Panel::Error {
+            title,
+            error,
+            max_mm,
+        } => (
+            title,
+            Box::new(|i| {
+                let e = error.get(i).copied().unwrap_or(f32::NAN) as f64 * 1000.0;
+                if e.is_finite() {
+                    turbo(e / *max_mm as f64)
+                } else {
+                    [60, 60, 60]
+                }
+            }),
+            (0.0, *max_mm as f64, "mm", 0),
+        ),
+    };
     draw_text(
         img,
         (mx + mw / 2) as i64 - text_width(title) as i64 / 2,
