@@ -573,27 +573,12 @@ fn step_fast<R: Apply>(
 mod tests {
     use super::super::conv_transpose3d_s8::conv_transpose3d_s8_plain;
     use super::super::soft_argmax_s8::soft_argmax_s8_plain;
-    use super::super::testutil::{params, Rng};
+    use super::super::testutil::{exp_table, params, soft_params, Rng};
     use super::super::Skip;
     use super::*;
     use crate::config;
     use std::vec;
     use std::vec::Vec;
-
-    fn exp_table(scale: f64) -> [u16; 256] {
-        core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
-    }
-
-    fn soft_params(exp: &[u16; 256], end_offset: u16) -> SoftArgmaxParams<'_> {
-        let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
-        let base = config::R_MIN_M - end_offset as f64 * step;
-        SoftArgmaxParams {
-            exp,
-            r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
-            step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
-            end_offset,
-        }
-    }
 
     /// The ring of step `t`: planes `t − P + 1 ..= t` of `input` (zeros outside `0..D`, which
     /// the kernels must not read anyway: filled with a pattern instead).

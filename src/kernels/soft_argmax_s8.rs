@@ -457,26 +457,11 @@ fn head_by_rays(
 #[cfg(test)]
 mod tests {
     use super::super::conv_transpose3d_s8::conv_transpose3d_s8_plain;
-    use super::super::testutil::{params, Rng};
+    use super::super::testutil::{exp_table, params, soft_params, Rng};
     use super::super::Skip;
     use super::*;
     use crate::config;
     use std::vec;
-
-    fn exp_table(scale: f64) -> [u16; 256] {
-        core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
-    }
-
-    fn epssn_params(exp: &[u16; 256], end_offset: u16) -> SoftArgmaxParams<'_> {
-        let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
-        let base = config::R_MIN_M - end_offset as f64 * step;
-        SoftArgmaxParams {
-            exp,
-            r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
-            step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
-            end_offset,
-        }
-    }
 
     #[test]
     fn optimised_equals_plain_random() {
@@ -488,7 +473,7 @@ mod tests {
                 columns: 1 + rng.below(150),
             };
             let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
-            let p = epssn_params(&exp, rng.below(12) as u16);
+            let p = soft_params(&exp, rng.below(12) as u16);
             let n = shape.rows * shape.bins * shape.columns;
             let logits = rng.i8s(n);
             let rays = shape.rows * shape.columns;
@@ -502,7 +487,7 @@ mod tests {
     #[test]
     fn equal_logits_give_the_middle_and_one_hot_gives_the_bin() {
         let exp = exp_table(0.2);
-        let p = epssn_params(&exp, 0);
+        let p = soft_params(&exp, 0);
         let shape = SoftArgmaxShape {
             rows: 1,
             bins: 64,
@@ -533,7 +518,7 @@ mod tests {
     fn fused_head_equals_conv_transpose_then_soft_argmax() {
         let mut rng = Rng(2024);
         let exp = exp_table(0.05);
-        let p = epssn_params(&exp, 3);
+        let p = soft_params(&exp, 3);
         // EPSSN-S's fused head shape (the compiled spec's head may overlap, which is not fused).
         let mut shapes = vec![ConvShape {
             in_channels: 8,
