@@ -39,10 +39,10 @@ link() { # SPLIT_DIR_OF_SCENE... DEST N: sample i of scene k becomes DEST/(3i + 
 }
 srcs=("$root/sphere/train" "$root/terrain/train" "$root/artificial/train"); link "$mix/train" "$train_n"
 srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/test"); link "$mix/val" "$val_n"
-resume=()
-[ -d weights/general/checkpoint ] && resume=(--resume)
+# --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
+# history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
-  --val-limit $((3 * val_n)) "${resume[@]}"
+  --val-limit $((3 * val_n)) --resume
 "${hs[@]}" quantise --weights weights/general --calib "$mix" --calibration-samples 64 --percentile 99.99 \
   --search --search-passes 2
 for scene in "${scenes[@]}"; do

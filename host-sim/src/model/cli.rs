@@ -30,7 +30,8 @@ pub struct TrainArgs {
     /// Batch size (default: the spec's).
     #[arg(long)]
     pub batch: Option<usize>,
-    /// Continue from `OUT/checkpoint/`.
+    /// Continue from `OUT/checkpoint/`, or, when a finished run left none, from `OUT`'s weights
+    /// and loss history with a fresh optimizer state (to train a finished run further).
     #[arg(long)]
     pub resume: bool,
     /// Output folder (default `weights/<scene>`).
@@ -140,6 +141,59 @@ fn write_curves(out: &Path, rows: &[LossRow]) -> Result<()> {
     super::plot::plot_losses(&out.join("loss.png"), &t, &v)
 }
 
+/// The training state at the end of the finished run in `out` (its manifest and `loss.csv`).
+fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Result<TrainState> {
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json"))?)
+            .with_context(|| format!("{}/manifest.json", out.display()))?;
+    let field = |k: &str| {
+        manifest[k]
+            .as_u64()
+            .with_context(|| format!("{}/manifest.json has no `{k}`", out.display()))
+    };
+    ensure!(
+        field("seed")? == seed && field("batch")? as usize == batch && field("views")? as usize == views,
+        "the run in {} was made with seed {}, batch {}, views {}: pass the same settings",
+        out.display(),
+        field("seed")?,
+        field("batch")?,
+        field("views")?
+    );
+    let csv = std::fs::read_to_string(out.join("loss.csv"))
+        .with_context(|| format!("{}/loss.csv", out.display()))?;
+    let mut history = Vec::new();
+    for line in csv.lines().skip(1).filter(|l| !l.trim().is_empty()) {
+        let f: Vec<&str> = line.split(',').collect();
+        ensure!(f.len() == 4, "bad loss.csv line `{line}`");
+        history.push(LossRow {
+            epoch: f[0].parse()?,
+            step: f[1].parse()?,
+            train_loss: f[2].parse()?,
+            val_loss: f[3].parse()?,
+        });
+    }
+    let epoch = field("epochs")? as usize;
+    ensure!(
+        history.len() == epoch,
+        "{}/loss.csv has {} epochs, the manifest {epoch}",
+        out.display(),
+        history.len()
+    );
+    Ok(TrainState {
+        epoch,
+        batch_in_epoch: 0,
+        global_step: field("steps")? as usize,
+        epoch_loss_sum: 0.0,
+        epoch_loss_count: 0,
+        history,
+        elapsed_s: manifest["wall_time_s"].as_f64().unwrap_or(0.0),
+        seed,
+        batch,
+        epochs: epoch,
+        views,
+    })
+}
+
 fn save_checkpoint(out: &Path, trainer: &Trainer, state: &TrainState) -> Result<()> {
     let tmp = out.join("checkpoint.tmp");
     let dst = out.join("checkpoint");
@@ -218,6 +272,25 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         eprintln!(
             "resuming at epoch {} batch {} (step {})",
             state.epoch, state.batch_in_epoch, state.global_step
+        );
+        (
+            t,
+            TrainState {
+                epochs: args.epochs,
+                ..state
+            },
+        )
+    } else if args.resume && out.join("manifest.json").exists() {
+        // A finished run keeps no checkpoint: continue from its weights and loss history with
+        // a fresh Adam state (the moments rebuild within a few hundred steps).
+        let state = finished_run_state(&out, args.seed, batch, views)?;
+        let tensors = load_safetensors(&out.join(WEIGHTS_FILE))?;
+        let t = Trainer::from_checkpoint(&spec, &tensors, None, views)?;
+        eprintln!(
+            "continuing the finished run in {} after epoch {} (step {}), fresh optimizer state",
+            out.display(),
+            state.epoch,
+            state.global_step
         );
         (
             t,
