@@ -86,6 +86,31 @@ pub fn sxtb16_ror8(x: u32) -> u32 {
     }
 }
 
+/// `SMMULR`: `(x·y + 2^31) >> 32`, the high word of the product rounded (signed).
+#[inline(always)]
+pub fn smmulr(x: i32, y: i32) -> i32 {
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    {
+        let r: i32;
+        // SAFETY: a pure register-to-register instruction of ARMv7E-M; no memory access.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::arch::asm!(
+                "smmulr {r}, {x}, {y}",
+                r = lateout(reg) r,
+                x = in(reg) x,
+                y = in(reg) y,
+                options(pure, nomem, nostack, preserves_flags),
+            );
+        }
+        r
+    }
+    #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
+    {
+        ((x as i64 * y as i64 + (1 << 31)) >> 32) as i32
+    }
+}
+
 /// Two i16 values as one word, `a` in the low half.
 #[inline(always)]
 pub fn pack(a: i16, b: i16) -> u32 {
@@ -168,6 +193,115 @@ pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i3
         a11 = smlad(x1, w[1], a11);
     }
     [a00, a01, a10, a11]
+}
+
+/// A row of [`dot2x2`]s: for every position `q < positions`, with `x_q = x[q·step ..
+/// q·step + n]`, `acc0[q] = bias[0] + x_q·w_0` and `acc1[q] = bias[1] + x_q·w_1` (channel words
+/// interleaved in `w` as for [`dot2x2`]), two positions per inner loop.
+///
+/// Returns false, leaving the accumulators alone, when a slice is too short for `positions`,
+/// `step` and `n` (the kernels never pass such slices). The slices are validated once per
+/// row, so a pair of positions costs the inner loop and about 12 instructions.
+pub fn dot2x2_row(
+    x: &[u32],
+    step: usize,
+    positions: usize,
+    w: &[u32],
+    n: usize,
+    bias: [i32; 2],
+    acc0: &mut [i32],
+    acc1: &mut [i32],
+) -> bool {
+    let last = match positions.checked_sub(1) {
+        None => return true,
+        Some(l) => l,
+    };
+    let fits = last
+        .checked_mul(step)
+        .and_then(|a| a.checked_add(n))
+        .is_some_and(|e| e <= x.len())
+        && n.checked_mul(2).is_some_and(|e| e <= w.len())
+        && acc0.len() >= positions
+        && acc1.len() >= positions
+        && step <= usize::MAX / 8;
+    if !fits {
+        return false;
+    }
+    let (acc0, acc1) = (&mut acc0[..positions], &mut acc1[..positions]);
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    if n % 2 == 0 && n > 0 {
+        for (p, (a0, a1)) in acc0.chunks_mut(2).zip(acc1.chunks_mut(2)).enumerate() {
+            let pair = a0.len() == 2;
+            let (mut r00, mut r01, mut r10, mut r11) = (bias[0], bias[0], bias[1], bias[1]);
+            // SAFETY: position q = 2p ≤ last starts at x[q·step], and q·step + n ≤ x.len()
+            // (checked above); the second position (q + 1, only when it exists, else the
+            // first one again: sb = 0) likewise; the loop reads n words of each and 2n
+            // words of w (checked above); n is even and non-zero, so the
+            // two-words-per-iteration loop ends exactly at `end`.
+            #[allow(unsafe_code)]
+            unsafe {
+                let xp = x.as_ptr().add(2 * p * step);
+                let end = xp.add(n);
+                core::arch::asm!(
+                    "2:",
+                    "ldr   {xa}, [{xp}, {sb}]",
+                    "ldr   {xb}, [{xp}], #4",
+                    "ldrd  {wa}, {wb}, [{wp}], #8",
+                    "smlad {a00}, {xb}, {wa}, {a00}",
+                    "smlad {a01}, {xa}, {wa}, {a01}",
+                    "smlad {a10}, {xb}, {wb}, {a10}",
+                    "smlad {a11}, {xa}, {wb}, {a11}",
+                    "ldr   {xa}, [{xp}, {sb}]",
+                    "ldr   {xb}, [{xp}], #4",
+                    "ldrd  {wa}, {wb}, [{wp}], #8",
+                    "smlad {a00}, {xb}, {wa}, {a00}",
+                    "smlad {a01}, {xa}, {wa}, {a01}",
+                    "smlad {a10}, {xb}, {wb}, {a10}",
+                    "smlad {a11}, {xa}, {wb}, {a11}",
+                    "cmp   {xp}, {end}",
+                    "bne   2b",
+                    xp = inout(reg) xp => _,
+                    wp = inout(reg) w.as_ptr() => _,
+                    sb = in(reg) if pair { step * 4 } else { 0 },
+                    end = in(reg) end,
+                    a00 = inout(reg) r00,
+                    a01 = inout(reg) r01,
+                    a10 = inout(reg) r10,
+                    a11 = inout(reg) r11,
+                    xa = out(reg) _,
+                    xb = out(reg) _,
+                    wa = out(reg) _,
+                    wb = out(reg) _,
+                    options(nostack, readonly),
+                );
+            }
+            a0[0] = r00;
+            a1[0] = r10;
+            if let (Some(b0), Some(b1)) = (a0.get_mut(1), a1.get_mut(1)) {
+                *b0 = r01;
+                *b1 = r11;
+            }
+        }
+        return true;
+    }
+    for (p, (a0, a1)) in acc0.chunks_mut(2).zip(acc1.chunks_mut(2)).enumerate() {
+        let q = 2 * p;
+        let second = if a0.len() == 2 { step } else { 0 };
+        let r = dot2x2(
+            &x[q * step..],
+            second,
+            w,
+            n,
+            [bias[0], bias[0], bias[1], bias[1]],
+        );
+        a0[0] = r[0];
+        a1[0] = r[2];
+        if let (Some(b0), Some(b1)) = (a0.get_mut(1), a1.get_mut(1)) {
+            *b0 = r[1];
+            *b1 = r[3];
+        }
+    }
+    true
 }
 
 /// Interleaves two i8 rows into i16 pairs: `dst[j · stride] = pack(a[j] + oa, b[j] + ob)`
@@ -255,6 +389,23 @@ mod tests {
     }
 
     #[test]
+    fn smmulr_rounds_the_high_word() {
+        let mut s = 0x9e37_79b9u32;
+        for _ in 0..10_000 {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let x = s as i32;
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let y = s as i32;
+            let want = ((x as i64 * y as i64 + (1i64 << 31)) >> 32) as i32;
+            assert_eq!(smmulr(x, y), want);
+        }
+        assert_eq!(smmulr(i32::MIN, i32::MIN), 1 << 30);
+        assert_eq!(smmulr(-1, 1), 0);
+        assert_eq!(smmulr(1 << 30, 2), 1); // 2^31 / 2^32: the tie rounds up
+        assert_eq!(smmulr(-(1 << 30), 2), 0);
+    }
+
+    #[test]
     fn dot2x2_is_the_sum_of_products() {
         let mut s = 0x1234_5678u32;
         let mut r = || {
@@ -285,6 +436,60 @@ mod tests {
             dot2x2(&[1, 2], 1, &[1, 2, 3, 4], 2, [1, 2, 3, 4]),
             [1, 2, 3, 4]
         );
+    }
+
+    #[test]
+    fn dot2x2_row_is_a_row_of_dot2x2() {
+        let mut s = 0x5555_1234u32;
+        let mut r = || {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            s
+        };
+        for n in 0..7 {
+            for step in 0..4 {
+                for positions in 0..6 {
+                    let len = positions.max(1) * step + n + 1;
+                    let x: std::vec::Vec<u32> = (0..len).map(|_| r()).collect();
+                    let w: std::vec::Vec<u32> = (0..2 * n).map(|_| r()).collect();
+                    let bias = [r() as i32 >> 8, -(r() as i32 >> 9)];
+                    let (mut a0, mut a1) = (std::vec![7i32; positions], std::vec![9i32; positions]);
+                    assert!(dot2x2_row(
+                        &x, step, positions, &w, n, bias, &mut a0, &mut a1
+                    ));
+                    for q in 0..positions {
+                        let want = dot2x2(&x[q * step..], 0, &w, n, [bias[0], 0, bias[1], 0]);
+                        assert_eq!(
+                            (a0[q], a1[q]),
+                            (want[0], want[2]),
+                            "n={n} step={step} q={q}"
+                        );
+                    }
+                }
+            }
+        }
+        // Too short: refused, untouched, no panic.
+        let (mut a0, mut a1) = ([1i32; 3], [2i32; 3]);
+        assert!(!dot2x2_row(
+            &[0; 4],
+            2,
+            3,
+            &[0; 4],
+            2,
+            [0, 0],
+            &mut a0,
+            &mut a1
+        ));
+        assert_eq!((a0, a1), ([1; 3], [2; 3]));
+        assert!(!dot2x2_row(
+            &[0; 8],
+            1,
+            3,
+            &[0; 4],
+            2,
+            [0, 0],
+            &mut a0[..2],
+            &mut a1
+        ));
     }
 
     #[test]

@@ -25,10 +25,11 @@ use fixed::types::U16F16;
 use crate::blob::{Blob, BlobError};
 use crate::config::{self, LayerKind, LayerShape, LAYERS};
 use crate::kernels::{
-    check_layer_bounds, conv2d_s8::conv2d_s8, conv3d_s8::conv3d_s8,
-    conv_transpose3d_s8::conv_transpose3d_s8, cost_volume_s8::cost_volume_s8,
+    check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
+    conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
+    conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostShape, cost_volume_s8::SourceView, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::SoftArgmaxParams, ConvParams, ConvShape, KernelError, Skip,
+    soft_argmax_s8::SoftArgmaxParams, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -227,6 +228,8 @@ struct LayerParams<'a> {
     bias: [i32; MAX_CHANNELS],
     requant: [Requant; MAX_CHANNELS],
     skip: Requant,
+    /// Worst-case accumulator ([`check_layer_bounds`]), verified in [`Model::from_blob`].
+    bound: i64,
 }
 
 /// A verified int8 EPSSN.
@@ -279,6 +282,7 @@ impl<'a> Model<'a> {
             bias: [0; MAX_CHANNELS],
             requant: [Requant::default(); MAX_CHANNELS],
             skip: Requant::default(),
+            bound: 0,
         };
         let mut layers = [empty; config::LAYER_COUNT];
         for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
@@ -320,6 +324,7 @@ impl<'a> Model<'a> {
             if !p.requant[..oc].iter().all(|r| r.fits(bound)) {
                 return Err(Error::AccumulatorBound { index });
             }
+            p.bound = bound;
         }
         let mut c = [0i32; 4];
         blob.read_i32("cost.rq", &mut c)?;
@@ -724,6 +729,19 @@ fn stage_name(prefix: &str, layers: Range<usize>) -> heapless::String<32> {
 }
 
 impl<'a> Model<'a> {
+    /// Layer `index`'s parameters with the accumulator bound verified in
+    /// [`Model::from_blob`], for the kernels' checked entries.
+    fn checked(&self, index: usize) -> CheckedParams<'_> {
+        let l = &LAYERS[index];
+        let p = &self.layers[index];
+        CheckedParams::verified(
+            &ConvShape::from(l),
+            layer_params(l, p, index),
+            matches!(l.kind, LayerKind::ConvTranspose3d),
+            p.bound,
+        )
+    }
+
     fn soft(&self) -> SoftArgmaxParams<'_> {
         SoftArgmaxParams {
             exp: &self.exp,
@@ -808,6 +826,7 @@ impl<'a> Model<'a> {
             st.filled - d
         };
         let params = layer_params(layer, &self.layers[l], l);
+        let checked = self.checked(l);
         // Padding is the value that the input offset turns into 0.
         let pad = (-params.input_offset) as i8;
         while filled < r {
@@ -862,7 +881,7 @@ impl<'a> Model<'a> {
         let window = s.window_start..s.window_start + c_in * r * w_in;
         let chunk = s.chunk_start..s.chunk_start + layer.out_channels * s.rows * layer.out_size[1];
         let (src, dst) = disjoint(buf, window, chunk);
-        conv2d_s8(&shape, src, &params, dst)?;
+        conv2d_s8_checked(&shape, src, &checked, dst)?;
         Ok(())
     }
 
@@ -898,7 +917,7 @@ impl<'a> Model<'a> {
         let mut input = PLAN.0[D1];
         for (i, l) in LAYERS.iter().enumerate().take(U0).skip(D1 + 1) {
             let p = &self.layers[i];
-            let params = layer_params(l, p, i);
+            let checked = self.checked(i);
             let shape = ConvShape::from(l);
             let out = PLAN.0[i];
             let (a, b) = (unet_range(input), unet_range(out));
@@ -908,14 +927,14 @@ impl<'a> Model<'a> {
                 disjoint(buf, a.0..a.0 + a.1, b.0..b.0 + b.1)
             };
             match l.kind {
-                LayerKind::Conv3d => conv3d_s8(&shape, src, &params, dst)?,
+                LayerKind::Conv3d => conv3d_s8_checked(&shape, src, &checked, dst)?,
                 LayerKind::ConvTranspose3d => {
                     let skip = if l.skip.is_some() {
                         Skip::InPlace { requant: p.skip }
                     } else {
                         Skip::None
                     };
-                    conv_transpose3d_s8(&shape, src, &params, skip, dst)?
+                    conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst)?
                 }
                 LayerKind::Conv2d => return Err(Error::Kernel(KernelError::NotTwoDimensional)),
             }
@@ -960,7 +979,7 @@ impl<'a> Model<'a> {
         let window = LIVE_END..LIVE_END + D1_WINDOW_LEN;
         let tile = window.end..window.end + D1_TILE_LEN;
         let (d1_start, _) = unet_range(PLAN.0[D1]);
-        let params = layer_params(l, &self.layers[D1], D1);
+        let checked = self.checked(D1);
         let mut shape = ConvShape::from(l);
         shape.in_size = [kd, rows, width];
         shape.out_size = [1, D1_ROWS, out_width];
@@ -1020,7 +1039,7 @@ impl<'a> Model<'a> {
                     held += 1;
                 }
                 let (src, dst) = disjoint(buf, window.clone(), tile.clone());
-                conv3d_s8(&shape, src, &params, dst)?;
+                conv3d_s8_checked(&shape, src, &checked, dst)?;
                 let n = D1_ROWS * out_width;
                 for o in 0..l.out_channels {
                     let at = d1_start + ((o * out_planes + d) * out_rows + y * D1_ROWS) * out_width;
@@ -1047,7 +1066,7 @@ impl<'a> Model<'a> {
         let in_plane = in_rows * in_width;
         let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
         let plane = LIVE_END..LIVE_END + U0_PLANE_LEN;
-        let params = layer_params(l, &self.layers[U0], U0);
+        let checked = self.checked(U0);
         let skip = Skip::InPlace {
             requant: self.layers[U0].skip,
         };
@@ -1091,7 +1110,7 @@ impl<'a> Model<'a> {
             shape.padding[0] = pad;
             shape.output_padding[0] = out_pad;
             let (src, dst) = disjoint(buf, gather, plane.clone());
-            conv_transpose3d_s8(&shape, src, &params, skip, dst)?;
+            conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst)?;
             head_soft_argmax_s8(
                 &head_shape,
                 &buf[plane.clone()],

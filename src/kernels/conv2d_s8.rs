@@ -6,7 +6,9 @@
 //!
 //! MACs: `O · OH · OW · I · kh · kw` (padded taps skipped, so slightly fewer at the border).
 
-use super::{check_conv, finish, ConvParams, ConvShape, KernelError};
+use super::{
+    check_conv, check_conv_shape, finish, CheckedParams, ConvParams, ConvShape, KernelError,
+};
 
 fn check_2d(shape: &ConvShape) -> Result<(), KernelError> {
     if shape.kernel[2] != 1
@@ -75,7 +77,30 @@ pub fn conv2d_s8(
     output: &mut [i8],
 ) -> Result<(), KernelError> {
     check_2d(shape)?;
-    let bound = check_conv(shape, input.len(), params, output.len())?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    let checked = CheckedParams::new(shape, *params, false)?;
+    engine(shape, input, &checked, output);
+    Ok(())
+}
+
+/// [`conv2d_s8`] with parameters whose accumulator bound was verified once
+/// ([`CheckedParams`]): per call only the shape and the slice lengths are validated.
+pub fn conv2d_s8_checked(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+) -> Result<(), KernelError> {
+    check_2d(shape)?;
+    checked.check_shape(shape, false)?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    engine(shape, input, checked, output);
+    Ok(())
+}
+
+/// The optimised engines on a validated shape and verified parameters.
+fn engine(shape: &ConvShape, input: &[i8], checked: &CheckedParams<'_>, output: &mut [i8]) {
+    let (params, bound) = (checked.params(), checked.bound());
     // Axes [H, W, 1] as [1, H, W]: the line engine's rows run along W (same memory layout).
     let s3 = ConvShape {
         kernel: [1, shape.kernel[0], shape.kernel[1]],
@@ -93,7 +118,6 @@ pub fn conv2d_s8(
     } else {
         rows(shape, input, params, output);
     }
-    Ok(())
 }
 
 /// Row-blocked variant: two output channels per pass share every input load; the valid tap

@@ -24,8 +24,7 @@
 //! 256-entry table of `MBQM(q_skip)`.
 
 use super::{ConvParams, ConvShape, Skip};
-use crate::dsp::dot2x2;
-use crate::requant::{Apply, FastRequant, Requant};
+use crate::requant::{Apply, Requant};
 
 /// Words (two i16 entries each) of the line buffer.
 pub const LINE_WORDS: usize = 1024;
@@ -44,18 +43,65 @@ pub(crate) const fn up4(x: usize) -> usize {
     x.div_ceil(4) * 4
 }
 
+/// [`crate::requant::FastRequant`]'s arithmetic with one `SMMULR` ([`crate::dsp::smmulr`]):
+/// for `a = acc · 2^left` with `|a| < 2^30`, `SRDHM(a, M) = ⌊(a·M + 2^30) / 2^31⌋ =
+/// ⌊(2a·M + 2^31) / 2^32⌋`, and `2a` fits i32; then the same rounding right shift. Exact
+/// wherever `FastRequant` is ([`Requant::fits_fast`]), in 6 instructions instead of 10.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct RowRequant {
+    multiplier: i32,
+    /// `left + 1`.
+    left1: u32,
+    right: u32,
+    half: i32,
+    /// −1 when `right > 0` (ties of negative values round away from zero), else 0.
+    neg: i32,
+}
+
+impl RowRequant {
+    /// Prepares `rq` (shifts clamped like [`crate::requant::FastRequant::new`]).
+    pub(crate) const fn new(rq: Requant) -> Self {
+        let left = if rq.shift > 0 { rq.shift as u32 } else { 0 };
+        let right = if rq.shift < 0 {
+            let r = rq.shift.wrapping_neg();
+            if r > 31 || r < 0 {
+                31
+            } else {
+                r as u32
+            }
+        } else {
+            0
+        };
+        RowRequant {
+            multiplier: rq.multiplier,
+            left1: if left > 30 { 31 } else { left + 1 },
+            right,
+            half: if right > 0 { 1 << (right - 1) } else { 0 },
+            neg: if right > 0 { -1 } else { 0 },
+        }
+    }
+}
+
+impl Apply for RowRequant {
+    #[inline(always)]
+    fn apply(self, acc: i32) -> i32 {
+        let x = crate::dsp::smmulr(acc.wrapping_shl(self.left1), self.multiplier);
+        x.wrapping_add(self.half).wrapping_add((x >> 31) & self.neg) >> self.right
+    }
+}
+
 /// Prepared requantisations of `params` when every channel fits the fast path for the
 /// layer's worst-case accumulator `bound`.
 pub(crate) fn fast_requants(
     requant: &[Requant],
     bound: i64,
-) -> Option<[FastRequant; MAX_FAST_CHANNELS]> {
+) -> Option<[RowRequant; MAX_FAST_CHANNELS]> {
     if requant.len() > MAX_FAST_CHANNELS || !requant.iter().all(|r| r.fits_fast(bound)) {
         return None;
     }
-    let mut f = [FastRequant::default(); MAX_FAST_CHANNELS];
+    let mut f = [RowRequant::default(); MAX_FAST_CHANNELS];
     for (f, &r) in f.iter_mut().zip(requant) {
-        *f = FastRequant::new(r);
+        *f = RowRequant::new(r);
     }
     Some(f)
 }
@@ -85,16 +131,62 @@ pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> Sk
     }
 }
 
-/// `t` → output: ReLU, skip add (table), int8 clamp; as [`super::finish`].
-#[inline(always)]
-fn store(out: &mut [i8], idx: usize, t: i32, relu: bool, skip: SkipLut<'_>) {
-    let t = if relu { t.max(0) } else { t };
-    let y = match skip {
-        SkipLut::None => t,
-        SkipLut::Separate(s, lut) => t.saturating_add(lut[s[idx] as u8 as usize]),
-        SkipLut::InPlace(lut) => t.saturating_add(lut[out[idx] as u8 as usize]),
+/// Requantises one row of one channel's accumulators and stores it: output `q` at
+/// `out[start + q · step]` = ReLU, skip add (table), int8 clamp, as [`super::finish`]. The
+/// skip kind and the ReLU are decided once per row, so each output costs the requantisation
+/// and about 8 instructions more. Not inlined: in its own function the loop keeps its
+/// operands in registers instead of reloading them from the engine's stack frame.
+#[inline(never)]
+fn requant_row<R: Apply>(
+    acc: &[i32],
+    rq: R,
+    relu: bool,
+    skip: SkipLut<'_>,
+    out: &mut [i8],
+    start: usize,
+    step: usize,
+) {
+    let Some(len) = acc.len().checked_sub(1).map(|l| l * step + 1) else {
+        return;
     };
-    out[idx] = y.clamp(-128, 127) as i8;
+    let Some(end) = start.checked_add(len) else {
+        return;
+    };
+    let Some(dst) = out.get_mut(start..end) else {
+        return;
+    };
+    match (skip, relu) {
+        (SkipLut::None, true) => store_row(acc, dst, step, |a, _, _| rq.apply(a).max(0)),
+        (SkipLut::None, false) => store_row(acc, dst, step, |a, _, _| rq.apply(a)),
+        (SkipLut::InPlace(lut), true) => store_row(acc, dst, step, |a, old, _| {
+            rq.apply(a).max(0).saturating_add(lut[old as u8 as usize])
+        }),
+        (SkipLut::InPlace(lut), false) => store_row(acc, dst, step, |a, old, _| {
+            rq.apply(a).saturating_add(lut[old as u8 as usize])
+        }),
+        (SkipLut::Separate(s, lut), _) => {
+            let skip = s.get(start..end).unwrap_or(&[]);
+            store_row(acc, dst, step, |a, _, i| {
+                let t = rq.apply(a);
+                let t = if relu { t.max(0) } else { t };
+                t.saturating_add(skip.get(i).map_or(0, |&v| lut[v as u8 as usize]))
+            })
+        }
+    }
+}
+
+/// `dst[q · step] = clamp(f(acc[q], dst[q · step], q · step))` for every `q`.
+#[inline(always)]
+fn store_row(acc: &[i32], dst: &mut [i8], step: usize, f: impl Fn(i32, i8, usize) -> i32) {
+    if step == 1 {
+        for (i, (d, &a)) in dst.iter_mut().zip(acc).enumerate() {
+            *d = f(a, *d, i).clamp(-128, 127) as i8;
+        }
+    } else {
+        for (q, (d, &a)) in dst.iter_mut().step_by(step.max(1)).zip(acc).enumerate() {
+            *d = f(a, *d, q * step).clamp(-128, 127) as i8;
+        }
+    }
 }
 
 /// Where a row's outputs go: output `(o, q)` at `o · plane + base + q · step`.
@@ -114,9 +206,18 @@ pub(crate) struct RowIn {
     pub words: usize,
 }
 
+/// Most positions of one row (a row is at most [`MAX_ROW`] input columns).
+const MAX_POSITIONS: usize = MAX_ROW;
+
+/// Accumulators of one row of two channels (one spare entry: the unpaired last position's
+/// second result lands there). Made once per kernel call, not per row.
+pub(crate) type RowAcc = [[i32; MAX_POSITIONS + 1]; 2];
+
 /// One row of outputs for all channels: 2 channels × 2 positions per inner loop
-/// ([`crate::dsp::dot2x2`]). `weights` holds, per channel pair, the two channels' words
-/// interleaved (`rin.words` words per channel; an odd last channel is paired with itself).
+/// ([`crate::dsp::dot2x2`]) into a row of accumulators per channel, then each channel's row
+/// requantised and stored ([`requant_row`]). `weights` holds, per channel pair, the two
+/// channels' words interleaved (`rin.words` words per channel; an odd last channel is paired
+/// with itself).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn row<R: Apply>(
@@ -129,34 +230,35 @@ pub(crate) fn row<R: Apply>(
     skip: SkipLut<'_>,
     out: &mut [i8],
     rout: RowOut,
+    acc: &mut RowAcc,
 ) {
     let n = rin.words;
     let step = if n == 0 { 0 } else { rin.step };
     let oc = bias.len().min(rq.len());
-    let at = |o: usize, q: usize| o * rout.plane + rout.base + q * rout.step;
+    let positions = rin.positions.min(MAX_POSITIONS);
     let mut o = 0;
     while o < oc {
         let two = o + 1 < oc;
-        let w = &weights[o * n..(o + 2) * n];
+        let Some(w) = weights.get(o * n..(o + 2) * n) else {
+            return;
+        };
         let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
-        let mut q = 0;
-        while q < rin.positions {
-            let pair = q + 1 < rin.positions;
-            let x = &line[q * step..];
-            // The unpaired last position reuses its own window as the second one.
-            let acc = dot2x2(x, if pair { step } else { 0 }, w, n, [b0, b0, b1, b1]);
-            let [a00, a01, a10, a11] = acc;
-            store(out, at(o, q), rq[o].apply(a00), relu, skip);
-            if pair {
-                store(out, at(o, q + 1), rq[o].apply(a01), relu, skip);
-            }
-            if two {
-                store(out, at(o + 1, q), rq[o + 1].apply(a10), relu, skip);
-                if pair {
-                    store(out, at(o + 1, q + 1), rq[o + 1].apply(a11), relu, skip);
-                }
-            }
-            q += 2;
+        let [acc0, acc1] = &mut *acc;
+        if !crate::dsp::dot2x2_row(line, step, positions, w, n, [b0, b1], acc0, acc1) {
+            return;
+        }
+        let at = |o: usize| o * rout.plane + rout.base;
+        requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
+        if two {
+            requant_row(
+                &acc1[..positions],
+                rq[o + 1],
+                relu,
+                skip,
+                out,
+                at(o + 1),
+                rout.step,
+            );
         }
         o += 2;
     }
@@ -282,6 +384,7 @@ pub(crate) fn conv<R: Apply>(
     };
     let mut wbuf = [0u32; WEIGHT_WORDS];
     let mut line = [0u32; LINE_WORDS];
+    let mut acc = [[0i32; MAX_POSITIONS + 1]; 2];
     let out_plane = od * oh * ow;
     let rin = RowIn {
         positions: ow,
@@ -326,6 +429,7 @@ pub(crate) fn conv<R: Apply>(
                         base: o0 * out_plane + (z * oh + y) * ow,
                         step: 1,
                     },
+                    &mut acc,
                 );
             }
         }
@@ -414,6 +518,7 @@ pub(crate) fn transposed<R: Apply>(
     let span = (lo, hi.max(lo), 0);
     let mut wbuf = [0u32; WEIGHT_WORDS];
     let mut line = [0u32; LINE_WORDS];
+    let mut acc = [[0i32; MAX_POSITIONS + 1]; 2];
     for fz in 0..sd {
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
         for fy in 0..sh {
@@ -495,6 +600,7 @@ pub(crate) fn transposed<R: Apply>(
                                 base: (z * oh + y) * ow + x0,
                                 step: sw,
                             },
+                            &mut acc,
                         );
                     }
                 }
