@@ -28,8 +28,9 @@ use crate::kernels::{
     check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
-    cost_volume_s8::CostShape, cost_volume_s8::SourceView, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::SoftArgmaxParams, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
+    cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
+    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams, CheckedParams,
+    ConvParams, ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -908,9 +909,25 @@ impl<'a> Model<'a> {
         for s in sources {
             expect_len(config::FEATURE_LEN, s.len())?;
         }
-        let requant = self.cost[sources.len() - 1];
+        let mut views = [SourceView {
+            features: &[],
+            warp: &[],
+        }; config::MAX_VIEWS - 1];
+        for (k, (v, s)) in views.iter_mut().zip(sources).enumerate() {
+            *v = SourceView {
+                features: s,
+                warp: &config::WARP_TABLES[k],
+            };
+        }
+        // Validated once; d1 and u0 each compute the whole volume from it piece by piece.
+        let cost = CostVolume::new(
+            &CostShape::EPSSN,
+            reference,
+            &views[..sources.len()],
+            self.cost[sources.len() - 1],
+        )?;
         let buf = &mut ws.buf;
-        self.stream_d1(reference, sources, requant, buf)?;
+        self.stream_d1(&cost, buf)?;
         let (s, l) = unet_range(PLAN.0[D1]);
         probe(&stage_name("cost", D1..D1 + 1), &buf[s..s + l]);
         // The small middle of the UNet, whole tensors in the UNet buffer as planned.
@@ -941,7 +958,7 @@ impl<'a> Model<'a> {
             probe(l.name, dst);
             input = out;
         }
-        self.stream_u0_head(reference, sources, requant, buf, depth)
+        self.stream_u0_head(&cost, buf, depth)
     }
 
     /// The front depth map from features; see [`Model::depth_from_features_probed`].
@@ -958,13 +975,7 @@ impl<'a> Model<'a> {
     /// d1 into its UNet region, [`COST_ROW_CHUNKS`] row tiles at a time: per tile, the window
     /// of `kd` cost-volume planes slides along the planes (the planes two output planes share
     /// are kept), and new planes are computed channel by channel for just the tile's rows.
-    fn stream_d1(
-        &self,
-        reference: &[i8],
-        sources: &[&[i8]],
-        requant: Requant,
-        buf: &mut [i8],
-    ) -> Result<(), Error> {
+    fn stream_d1(&self, cost: &CostVolume<'_>, buf: &mut [i8]) -> Result<(), Error> {
         let l = &LAYERS[D1];
         let (kd, sd, pd) = (
             l.kernel[0] as usize,
@@ -1019,22 +1030,7 @@ impl<'a> Model<'a> {
                         pad_top.fill(0);
                         let (real, pad_bottom) = rest.split_at_mut((r1 - r0) * width);
                         pad_bottom.fill(0);
-                        let feat = c * height * width;
-                        let span = feat + r0 * width..feat + r1 * width;
-                        cost_plane(
-                            reference,
-                            sources,
-                            &span,
-                            j as usize,
-                            CostShape {
-                                channels: 1,
-                                planes: 1,
-                                height: r1 - r0,
-                                width,
-                            },
-                            requant,
-                            real,
-                        )?;
+                        cost.rows(c, j as usize, r0..r1, real)?;
                     }
                     held += 1;
                 }
@@ -1055,9 +1051,7 @@ impl<'a> Model<'a> {
     /// output plane adds onto it in place, then the fused head turns it into its depth rows.
     fn stream_u0_head(
         &self,
-        reference: &[i8],
-        sources: &[&[i8]],
-        requant: Requant,
+        cost: &CostVolume<'_>,
         buf: &mut [i8],
         depth: &mut [U16F16],
     ) -> Result<(), Error> {
@@ -1077,20 +1071,11 @@ impl<'a> Model<'a> {
         head_shape.out_size[0] = head.kernel[0] as usize;
         let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
-        let features = 0..config::FEATURE_LEN;
+        let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
         for (t, depth_t) in depth.chunks_exact_mut(depth_rows).enumerate() {
-            cost_plane(
-                reference,
-                sources,
-                &features,
-                t,
-                CostShape {
-                    planes: 1,
-                    ..CostShape::EPSSN
-                },
-                requant,
-                &mut buf[plane.clone()],
-            )?;
+            for (c, out) in buf[plane.clone()].chunks_exact_mut(cost_plane).enumerate() {
+                cost.rows(c, t, 0..config::FEATURE_RANGE_BINS, out)?;
+            }
             let (first, planes, pad, out_pad) = u0_plane(t);
             let gather = plane.end..plane.end + l.in_channels * planes * in_plane;
             for c in 0..l.in_channels {
@@ -1121,38 +1106,6 @@ impl<'a> Model<'a> {
         }
         Ok(())
     }
-}
-
-/// Cost-volume plane `j` of the feature elements `span` (one channel's rows, or all of it) of
-/// the reference and every source view.
-fn cost_plane(
-    reference: &[i8],
-    sources: &[&[i8]],
-    span: &Range<usize>,
-    j: usize,
-    shape: CostShape,
-    requant: Requant,
-    out: &mut [i8],
-) -> Result<(), Error> {
-    let w = config::FEATURE_COLUMNS;
-    let mut views = [SourceView {
-        features: &[],
-        warp: &[],
-    }; config::MAX_VIEWS - 1];
-    for (k, (v, s)) in views.iter_mut().zip(sources).enumerate() {
-        *v = SourceView {
-            features: &s[span.clone()],
-            warp: &config::WARP_TABLES[k][j * w..(j + 1) * w],
-        };
-    }
-    cost_volume_s8(
-        &shape,
-        &reference[span.clone()],
-        &views[..sources.len()],
-        requant,
-        out,
-    )?;
-    Ok(())
 }
 
 /// `(start, len)` of a UNet region (an empty range for any other region).
