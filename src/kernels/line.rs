@@ -29,7 +29,7 @@ use crate::requant::{Apply, Requant};
 /// Words (two i16 entries each) of the line buffer.
 pub const LINE_WORDS: usize = 1024;
 /// Words (two i16 weights each) of the reordered weights of one call or phase.
-pub const WEIGHT_WORDS: usize = 1024;
+pub const WEIGHT_WORDS: usize = 3456;
 /// Most line entries per column (`v`, padded to a multiple of 4).
 pub const MAX_V: usize = 256;
 /// Largest column stride of a transposed convolution the engine takes.
@@ -340,12 +340,15 @@ pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
         && shape.in_size[2] <= MAX_ROW
         && vp * cols / 2 <= LINE_WORDS
         && 2 * kw * vp / 2 <= WEIGHT_WORDS
-        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= 2
+        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= MAX_GROUPS
         && shape.out_channels <= MAX_FAST_CHANNELS
 }
 
+/// Most weight groups of a forward convolution: each further group refills the lines.
+const MAX_GROUPS: usize = 2;
+
 /// Output channels per weight group: an even number whose `n` words each fit
-/// [`WEIGHT_WORDS`]. More than two groups (m0) refill the lines too often to beat im2col.
+/// [`WEIGHT_WORDS`]. More than two groups refill the lines too often to beat im2col.
 fn conv_group(n: usize) -> usize {
     (WEIGHT_WORDS / n.max(1) / 2 * 2).max(2)
 }
