@@ -244,7 +244,7 @@ pub(crate) fn row<R: Apply>(
         };
         let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
         let [acc0, acc1] = &mut *acc;
-        if !crate::dsp::dot2x2_row(line, step, positions, w, n, [b0, b1], acc0, acc1) {
+        if !crate::dsp::dot2x2_row(line, step, positions, w, n, [b0, b1], (acc0, acc1, 1)) {
             return;
         }
         let at = |o: usize| o * rout.plane + rout.base;
@@ -483,6 +483,7 @@ pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
         && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
         && shape.stride[2] <= MAX_STRIDE
+        && shape.out_size[2] <= MAX_POSITIONS
 }
 
 /// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
@@ -580,31 +581,40 @@ pub(crate) fn transposed<R: Apply>(
                         let iy = by.checked_sub(b).filter(|&c| c < ih)?;
                         Some(((i * id + iz) * ih + iy) * iw)
                     });
-                    for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
-                        if nx == 0 {
-                            continue;
+                    // Every x phase's dot products into one row of accumulators per
+                    // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
+                    // over the whole output row.
+                    let base = (z * oh + y) * ow;
+                    let mut o = 0;
+                    while o < oc {
+                        let two = o + 1 < oc;
+                        let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
+                        let [acc0, acc1] = &mut acc;
+                        for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
+                            if nx == 0 {
+                                continue;
+                            }
+                            let n = tx * vw;
+                            let w = wbuf.get(wofs + o * n..wofs + (o + 2) * n).unwrap_or(&[]);
+                            let x = line.get(start..vw * cols).unwrap_or(&[]);
+                            let step = if n == 0 { 0 } else { vw };
+                            let accs = (&mut acc0[x0..], &mut acc1[x0..], sw);
+                            crate::dsp::dot2x2_row(x, step, nx, w, n, [b0, b1], accs);
                         }
-                        let n = tx * vw;
-                        row(
-                            &line[start..vw * cols],
-                            RowIn {
-                                positions: nx,
-                                step: vw,
-                                words: n,
-                            },
-                            &wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n],
-                            params.bias,
-                            rq,
-                            params.relu,
-                            skip,
-                            output,
-                            RowOut {
-                                plane: out_plane,
-                                base: (z * oh + y) * ow + x0,
-                                step: sw,
-                            },
-                            &mut acc,
-                        );
+                        let at = |o: usize| o * out_plane + base;
+                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                        if two {
+                            requant_row(
+                                &acc1[..ow],
+                                rq[o + 1],
+                                params.relu,
+                                skip,
+                                output,
+                                at(o + 1),
+                                1,
+                            );
+                        }
+                        o += 2;
                     }
                 }
             }
