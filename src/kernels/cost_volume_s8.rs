@@ -378,9 +378,24 @@ impl<'a> CostVolume<'a> {
         }
         let src0 = &self.sources[0].features[span.clone()];
         if self.views == 1 {
-            // Column by column: the column's tap stays in registers down the rows.
+            // Column by column (the column's tap stays in registers down the rows), each
+            // tap as two adjacent source columns `c, c + 1` and their weights.
             for (b, t) in taps[0][..width].iter().enumerate() {
-                // l, r < width (validated entries); every chunk has width values.
+                let (c, wl, wr) = if width < 2 {
+                    (usize::MAX, 0, 0)
+                } else if t.wr > 0 || t.wl == 0 {
+                    // Interpolating (right = left + 1), or invisible (weights 0).
+                    ((t.left as usize).min(width - 2), t.wl, t.wr)
+                } else if (t.left as usize) + 1 < width {
+                    (t.left as usize, t.wl, 0)
+                } else {
+                    (t.left as usize - 1, 0, t.wl)
+                };
+                if crate::dsp::cost_column(out, reference, src0, width, b, c, (wl, wr), &self.table)
+                {
+                    continue;
+                }
+                // Not a two-column tap (a single column): the plain arithmetic.
                 let (l, r) = (
                     (t.left as usize).min(width - 1),
                     (t.right as usize).min(width - 1),
