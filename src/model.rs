@@ -24,6 +24,7 @@ use fixed::types::U16F16;
 
 use crate::blob::{Blob, BlobError};
 use crate::config::{self, LayerKind, LayerShape, LAYERS};
+use crate::kernels::LineScratch;
 use crate::kernels::{
     check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
@@ -667,6 +668,8 @@ const _: () = {
 /// next.
 pub struct Workspace {
     buf: [i8; WORKSPACE_LEN],
+    /// The line engine's weights, line and accumulators, reused by every kernel call.
+    scratch: LineScratch,
 }
 
 impl Default for Workspace {
@@ -680,11 +683,12 @@ impl Workspace {
     pub const fn new() -> Self {
         Self {
             buf: [0; WORKSPACE_LEN],
+            scratch: LineScratch::new(),
         }
     }
 
     /// Bytes of RAM the workspace occupies.
-    pub const BYTES: usize = WORKSPACE_LEN;
+    pub const BYTES: usize = core::mem::size_of::<Self>();
 }
 
 /// What a feature layer's line buffers hold: input rows `lo..lo + filled` (virtual rows:
@@ -777,7 +781,7 @@ impl<'a> Model<'a> {
         let plane = l.out_size[0] * l.out_size[1];
         let n = s.rows * l.out_size[1];
         for j in 0..FEATURE_CHUNKS {
-            self.feature_chunk(last, j, image, &mut ws.buf, &mut state)?;
+            self.feature_chunk(last, j, image, &mut ws.buf, &mut ws.scratch, &mut state)?;
             for (c, dst) in features.chunks_exact_mut(plane).enumerate() {
                 let src = s.chunk_start + c * n;
                 dst[j * n..(j + 1) * n].copy_from_slice(&ws.buf[src..src + n]);
@@ -806,6 +810,7 @@ impl<'a> Model<'a> {
         j: usize,
         image: &[u8],
         buf: &mut [i8],
+        scratch: &mut LineScratch,
         state: &mut [StreamState; FEATURE_LAYERS],
     ) -> Result<(), Error> {
         let layer = &LAYERS[l];
@@ -858,7 +863,7 @@ impl<'a> Model<'a> {
                 let p = FEATURE_STREAMS.0[l - 1];
                 let jj = row / p.rows;
                 if state[l - 1].chunk != Some(jj) {
-                    self.feature_chunk(l - 1, jj, image, buf, state)?;
+                    self.feature_chunk(l - 1, jj, image, buf, scratch, state)?;
                 }
                 let n = (r - filled).min((jj + 1) * p.rows - row);
                 for c in 0..c_in {
@@ -882,7 +887,7 @@ impl<'a> Model<'a> {
         let window = s.window_start..s.window_start + c_in * r * w_in;
         let chunk = s.chunk_start..s.chunk_start + layer.out_channels * s.rows * layer.out_size[1];
         let (src, dst) = disjoint(buf, window, chunk);
-        conv2d_s8_checked(&shape, src, &checked, dst)?;
+        conv2d_s8_checked(&shape, src, &checked, dst, scratch)?;
         Ok(())
     }
 
@@ -926,8 +931,8 @@ impl<'a> Model<'a> {
             &views[..sources.len()],
             self.cost[sources.len() - 1],
         )?;
-        let buf = &mut ws.buf;
-        self.stream_d1(&cost, buf)?;
+        let Workspace { buf, scratch } = ws;
+        self.stream_d1(&cost, buf, scratch)?;
         let (s, l) = unet_range(PLAN.0[D1]);
         probe(&stage_name("cost", D1..D1 + 1), &buf[s..s + l]);
         // The small middle of the UNet, whole tensors in the UNet buffer as planned.
@@ -944,21 +949,21 @@ impl<'a> Model<'a> {
                 disjoint(buf, a.0..a.0 + a.1, b.0..b.0 + b.1)
             };
             match l.kind {
-                LayerKind::Conv3d => conv3d_s8_checked(&shape, src, &checked, dst)?,
+                LayerKind::Conv3d => conv3d_s8_checked(&shape, src, &checked, dst, scratch)?,
                 LayerKind::ConvTranspose3d => {
                     let skip = if l.skip.is_some() {
                         Skip::InPlace { requant: p.skip }
                     } else {
                         Skip::None
                     };
-                    conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst)?
+                    conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst, scratch)?
                 }
                 LayerKind::Conv2d => return Err(Error::Kernel(KernelError::NotTwoDimensional)),
             }
             probe(l.name, dst);
             input = out;
         }
-        self.stream_u0_head(&cost, buf, depth)
+        self.stream_u0_head(&cost, buf, scratch, depth)
     }
 
     /// The front depth map from features; see [`Model::depth_from_features_probed`].
@@ -975,7 +980,12 @@ impl<'a> Model<'a> {
     /// d1 into its UNet region, [`COST_ROW_CHUNKS`] row tiles at a time: per tile, the window
     /// of `kd` cost-volume planes slides along the planes (the planes two output planes share
     /// are kept), and new planes are computed channel by channel for just the tile's rows.
-    fn stream_d1(&self, cost: &CostVolume<'_>, buf: &mut [i8]) -> Result<(), Error> {
+    fn stream_d1(
+        &self,
+        cost: &CostVolume<'_>,
+        buf: &mut [i8],
+        scratch: &mut LineScratch,
+    ) -> Result<(), Error> {
         let l = &LAYERS[D1];
         let (kd, sd, pd) = (
             l.kernel[0] as usize,
@@ -1035,7 +1045,7 @@ impl<'a> Model<'a> {
                     held += 1;
                 }
                 let (src, dst) = disjoint(buf, window.clone(), tile.clone());
-                conv3d_s8_checked(&shape, src, &checked, dst)?;
+                conv3d_s8_checked(&shape, src, &checked, dst, scratch)?;
                 let n = D1_ROWS * out_width;
                 for o in 0..l.out_channels {
                     let at = d1_start + ((o * out_planes + d) * out_rows + y * D1_ROWS) * out_width;
@@ -1053,6 +1063,7 @@ impl<'a> Model<'a> {
         &self,
         cost: &CostVolume<'_>,
         buf: &mut [i8],
+        scratch: &mut LineScratch,
         depth: &mut [U16F16],
     ) -> Result<(), Error> {
         let l = &LAYERS[U0];
@@ -1095,7 +1106,7 @@ impl<'a> Model<'a> {
             shape.padding[0] = pad;
             shape.output_padding[0] = out_pad;
             let (src, dst) = disjoint(buf, gather, plane.clone());
-            conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst)?;
+            conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst, scratch)?;
             head_soft_argmax_s8(
                 &head_shape,
                 &buf[plane.clone()],

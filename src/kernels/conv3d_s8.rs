@@ -7,6 +7,7 @@
 
 use super::{
     check_conv, check_conv_shape, finish, CheckedParams, ConvParams, ConvShape, KernelError,
+    LineScratch,
 };
 
 /// Plain reference: straightforward loops with a bounds test per tap.
@@ -80,29 +81,37 @@ pub fn conv3d_s8(
 ) -> Result<(), KernelError> {
     check_conv_shape(shape, input.len(), output.len())?;
     let checked = CheckedParams::new(shape, *params, false)?;
-    engine(shape, input, &checked, output);
+    engine(shape, input, &checked, output, &mut LineScratch::new());
     Ok(())
 }
 
 /// [`conv3d_s8`] with parameters whose accumulator bound was verified once
-/// ([`CheckedParams`]): per call only the shape and the slice lengths are validated.
+/// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
+/// line engine works in the caller's `scratch`.
 pub fn conv3d_s8_checked(
     shape: &ConvShape,
     input: &[i8],
     checked: &CheckedParams<'_>,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) -> Result<(), KernelError> {
     checked.check_shape(shape, false)?;
     check_conv_shape(shape, input.len(), output.len())?;
-    engine(shape, input, checked, output);
+    engine(shape, input, checked, output, scratch);
     Ok(())
 }
 
 /// The optimised engines on a validated shape and verified parameters.
-fn engine(shape: &ConvShape, input: &[i8], checked: &CheckedParams<'_>, output: &mut [i8]) {
+fn engine(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) {
     let (params, bound) = (checked.params(), checked.bound());
     if super::line::conv_fits(shape) {
-        super::line::run_conv(shape, input, params, bound, output);
+        super::line::run_conv(shape, input, params, bound, output, scratch);
     } else if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
         im2col_engine(shape, input, params, output);
     } else {

@@ -210,8 +210,35 @@ pub(crate) struct RowIn {
 const MAX_POSITIONS: usize = MAX_ROW;
 
 /// Accumulators of one row of two channels (one spare entry: the unpaired last position's
-/// second result lands there). Made once per kernel call, not per row.
+/// second result lands there).
 pub(crate) type RowAcc = [[i32; MAX_POSITIONS + 1]; 2];
+
+/// The line engine's scratch (expanded weights, line buffer, accumulator rows, about 20 KiB):
+/// a kernel call writes every word of it that it reads, so one scratch serves any number of
+/// calls and nothing is zeroed per call. The public kernels make one on the stack; the
+/// streamed model keeps one in its workspace and passes it to the `*_checked` kernels.
+pub struct LineScratch {
+    wbuf: [u32; WEIGHT_WORDS],
+    line: [u32; LINE_WORDS],
+    acc: RowAcc,
+}
+
+impl Default for LineScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl LineScratch {
+    /// A zeroed scratch.
+    pub const fn new() -> Self {
+        Self {
+            wbuf: [0; WEIGHT_WORDS],
+            line: [0; LINE_WORDS],
+            acc: [[0; MAX_POSITIONS + 1]; 2],
+        }
+    }
+}
 
 /// One row of outputs for all channels: 2 channels × 2 positions per inner loop
 /// ([`crate::dsp::dot2x2`]) into a row of accumulators per channel, then each channel's row
@@ -362,6 +389,7 @@ pub(crate) fn conv<R: Apply>(
     params: &ConvParams<'_>,
     rq: &[R],
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
@@ -385,9 +413,7 @@ pub(crate) fn conv<R: Apply>(
             0
         }
     };
-    let mut wbuf = [0u32; WEIGHT_WORDS];
-    let mut line = [0u32; LINE_WORDS];
-    let mut acc = [[0i32; MAX_POSITIONS + 1]; 2];
+    let LineScratch { wbuf, line, acc } = scratch;
     let out_plane = od * oh * ow;
     let rin = RowIn {
         positions: ow,
@@ -406,10 +432,10 @@ pub(crate) fn conv<R: Apply>(
                 }
             }
         }
-        pad_pairs(&mut wbuf, g, n);
+        pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
-                fill(&mut line, vp, cols, span, input, off, |v| {
+                fill(line, vp, cols, span, input, off, |v| {
                     if v >= v_len {
                         return None;
                     }
@@ -419,7 +445,7 @@ pub(crate) fn conv<R: Apply>(
                     Some(((i * id + iz) * ih + iy) * iw)
                 });
                 row(
-                    &line,
+                    line,
                     rin,
                     &wbuf[..g.div_ceil(2) * 2 * n],
                     &params.bias[o0..o0 + g],
@@ -432,7 +458,7 @@ pub(crate) fn conv<R: Apply>(
                         base: o0 * out_plane + (z * oh + y) * ow,
                         step: 1,
                     },
-                    &mut acc,
+                    acc,
                 );
             }
         }
@@ -447,11 +473,12 @@ pub(crate) fn run_conv(
     params: &ConvParams<'_>,
     bound: i64,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let oc = shape.out_channels;
     match fast_requants(params.requant, bound) {
-        Some(f) => conv(shape, input, params, &f[..oc], output),
-        None => conv(shape, input, params, params.requant, output),
+        Some(f) => conv(shape, input, params, &f[..oc], output, scratch),
+        None => conv(shape, input, params, params.requant, output, scratch),
     }
 }
 
@@ -498,6 +525,7 @@ pub(crate) fn transposed<R: Apply>(
     rq: &[R],
     skip: SkipLut<'_>,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
@@ -520,9 +548,7 @@ pub(crate) fn transposed<R: Apply>(
         (iw as isize - ixlo).clamp(0, cols as isize) as usize,
     );
     let span = (lo, hi.max(lo), 0);
-    let mut wbuf = [0u32; WEIGHT_WORDS];
-    let mut line = [0u32; LINE_WORDS];
-    let mut acc = [[0i32; MAX_POSITIONS + 1]; 2];
+    let LineScratch { wbuf, line, acc } = scratch;
     for fz in 0..sd {
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
         for fy in 0..sh {
@@ -572,7 +598,7 @@ pub(crate) fn transposed<R: Apply>(
                 for qy in 0..ny {
                     let y = y0 + qy * sh;
                     let by = (y + ph) / sh;
-                    fill(&mut line, vp, cols, span, input, off, |v| {
+                    fill(line, vp, cols, span, input, off, |v| {
                         if v >= v_len {
                             return None;
                         }
@@ -589,7 +615,7 @@ pub(crate) fn transposed<R: Apply>(
                     while o < oc {
                         let two = o + 1 < oc;
                         let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
-                        let [acc0, acc1] = &mut acc;
+                        let [acc0, acc1] = &mut *acc;
                         for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
                             if nx == 0 {
                                 continue;
@@ -630,12 +656,13 @@ pub(crate) fn run_transposed(
     bound: i64,
     skip: &Skip<'_>,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let oc = shape.out_channels;
     let table = skip_table(skip);
     let lut = skip_lut(skip, &table);
     match fast_requants(params.requant, bound) {
-        Some(f) => transposed(shape, input, params, &f[..oc], lut, output),
-        None => transposed(shape, input, params, params.requant, lut, output),
+        Some(f) => transposed(shape, input, params, &f[..oc], lut, output, scratch),
+        None => transposed(shape, input, params, params.requant, lut, output, scratch),
     }
 }

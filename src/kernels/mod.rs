@@ -21,6 +21,8 @@ pub mod cost_volume_s8;
 mod line;
 pub mod soft_argmax_s8;
 
+pub use line::LineScratch;
+
 use crate::config::LayerShape;
 use crate::requant::Requant;
 
