@@ -317,8 +317,8 @@ fn pad_pairs(wbuf: &mut [u32], oc: usize, n: usize) {
 pub const MAX_ROW: usize = 256;
 static ZEROS: [i8; MAX_ROW] = [0; MAX_ROW];
 
-/// Fills the line: for each `v` in `0..vp`, `src(v)` is the input offset of the row that
-/// entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
+/// Fills the line: `src()`, called once for each `v` in `0..vp` in order, is the input
+/// offset of the row that entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
 /// column `in0` on, the other columns are 0 (padding).
 ///
 /// Word by word: entries `2k`, `2k + 1` of every column come from two rows read in step
@@ -331,7 +331,7 @@ fn fill(
     (lo, hi, in0): (usize, usize, usize),
     input: &[i8],
     off: i16,
-    src: impl Fn(usize) -> Option<usize>,
+    mut src: impl FnMut() -> Option<usize>,
 ) {
     let vw = vp / 2;
     if vw == 0 {
@@ -340,12 +340,13 @@ fn fill(
     let words = &mut line[..vw * cols];
     let len = hi.saturating_sub(lo).min(MAX_ROW);
     // Padding rows read zeros and add nothing (padding contributes 0, not the offset).
-    let row = |v: usize| match src(v) {
+    let mut row = || match src() {
         Some(base) => (&input[base + in0..base + in0 + len], off),
         None => (&ZEROS[..len], 0),
     };
     for k in 0..vw {
-        let ((ra, oa), (rb, ob)) = (row(2 * k), row(2 * k + 1));
+        let (ra, oa) = row();
+        let (rb, ob) = row();
         for c in 0..lo.min(cols) {
             words[c * vw + k] = 0;
         }
@@ -435,14 +436,26 @@ pub(crate) fn conv<R: Apply>(
         pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
-                fill(line, vp, cols, span, input, off, |v| {
-                    if v >= v_len {
+                // v = (i, kz, ky), counted up without divisions.
+                let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
+                fill(line, vp, cols, span, input, off, || {
+                    let (vi, ii, zi, yi) = (v, i, kz, ky);
+                    v += 1;
+                    ky += 1;
+                    if ky == kh {
+                        ky = 0;
+                        kz += 1;
+                        if kz == kd {
+                            kz = 0;
+                            i += 1;
+                        }
+                    }
+                    if vi >= v_len {
                         return None;
                     }
-                    let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
-                    let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
-                    let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
-                    Some(((i * id + iz) * ih + iy) * iw)
+                    let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+                    let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+                    Some(((ii * id + iz) * ih + iy) * iw)
                 });
                 row(
                     line,
@@ -598,14 +611,26 @@ pub(crate) fn transposed<R: Apply>(
                 for qy in 0..ny {
                     let y = y0 + qy * sh;
                     let by = (y + ph) / sh;
-                    fill(line, vp, cols, span, input, off, |v| {
-                        if v >= v_len {
+                    // v = (i, a, b), counted up without divisions.
+                    let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
+                    fill(line, vp, cols, span, input, off, || {
+                        let (vi, ii, ai, bi) = (v, i, a, b);
+                        v += 1;
+                        b += 1;
+                        if b == ty {
+                            b = 0;
+                            a += 1;
+                            if a == tz {
+                                a = 0;
+                                i += 1;
+                            }
+                        }
+                        if vi >= v_len {
                             return None;
                         }
-                        let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
-                        let iz = bz.checked_sub(a).filter(|&c| c < id)?;
-                        let iy = by.checked_sub(b).filter(|&c| c < ih)?;
-                        Some(((i * id + iz) * ih + iy) * iw)
+                        let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
+                        let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
+                        Some(((ii * id + iz) * ih + iy) * iw)
                     });
                     // Every x phase's dot products into one row of accumulators per
                     // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
