@@ -575,6 +575,21 @@ pub(crate) fn transposed<R: Apply>(
             // Per x phase: (first x, count, taps, weight offset, first line word).
             let mut xs = [(0usize, 0usize, 0usize, 0usize, 0usize); MAX_STRIDE];
             let mut wofs = 0;
+            // Weight index of entry v = (i, a, b) for output channel 0 and column tap 0:
+            // ((i·oc·kd + kz)·kh + ky)·kw with kz = fz + a·sd, ky = fy + b·sh (counted up).
+            let taps_o = kd * kh * kw;
+            let mut vbase = [0usize; MAX_V];
+            let mut v = 0;
+            for i in 0..ic {
+                for a in 0..tz {
+                    for b in 0..ty {
+                        if let Some(slot) = vbase.get_mut(v) {
+                            *slot = i * oc * taps_o + ((fz + a * sd) * kh + fy + b * sh) * kw;
+                        }
+                        v += 1;
+                    }
+                }
+            }
             for (fx, x) in xs.iter_mut().enumerate().take(sw.min(MAX_STRIDE)) {
                 let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
                 // Output x reads input columns bx − (tx − 1) ..= bx, bx = (x + pw) / sw.
@@ -589,9 +604,7 @@ pub(crate) fn transposed<R: Apply>(
                         return 0;
                     }
                     let kx = fx + (tx - 1 - cp) * sw;
-                    let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
-                    let (kz, ky) = (fz + a * sd, fy + b * sh);
-                    params.weights[(((i * oc + o) * kd + kz) * kh + ky) * kw + kx]
+                    params.weights[vbase[v] + o * taps_o + kx]
                 };
                 let wb = &mut wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n];
                 for o in 0..oc {
