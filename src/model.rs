@@ -30,8 +30,9 @@ use crate::kernels::{
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
-    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams, CheckedParams,
-    ConvParams, ConvShape, KernelError, Skip,
+    head_s8::head_step_s8, head_s8::head_steps, soft_argmax_s8::head_soft_argmax_s8,
+    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
+    soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -201,7 +202,16 @@ const _: () = {
 pub struct WholeWorkspace {
     cost: [i8; COST_BUFFER_LEN],
     unet: [i8; UNET_BUFFER_LEN],
+    logits: [i8; WHOLE_LOGITS_LEN],
 }
+
+/// The whole `[E][R][A]` logits volume, which the whole-tensor path needs only when the head
+/// is not fused with the soft-argmax.
+const WHOLE_LOGITS_LEN: usize = if HEAD_FUSED {
+    0
+} else {
+    config::DEPTH_LEN * config::DEPTH_RANGE_BINS
+};
 
 impl Default for WholeWorkspace {
     fn default() -> Self {
@@ -215,11 +225,12 @@ impl WholeWorkspace {
         Self {
             cost: [0; COST_BUFFER_LEN],
             unet: [0; UNET_BUFFER_LEN],
+            logits: [0; WHOLE_LOGITS_LEN],
         }
     }
 
     /// Bytes of RAM the workspace occupies.
-    pub const BYTES: usize = COST_BUFFER_LEN + UNET_BUFFER_LEN;
+    pub const BYTES: usize = COST_BUFFER_LEN + UNET_BUFFER_LEN + WHOLE_LOGITS_LEN;
 }
 
 /// Parameters of one layer: int8 weights borrowed from the blob, the rest copied to RAM
@@ -440,14 +451,20 @@ impl<'a> Model<'a> {
             let shape = ConvShape::from(l);
             let out = PLAN.0[i];
             if out == Region::Depth {
-                let src = region(ws, input);
-                let soft = SoftArgmaxParams {
-                    exp: &self.exp,
-                    r_min16: U16F16::from_bits(config::R_MIN_Q16),
-                    step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
-                    end_offset: config::END_BIN_OFFSET as u16,
-                };
-                head_soft_argmax_s8(&shape, src, &params, &soft, depth)?;
+                let soft = self.soft();
+                if HEAD_FUSED {
+                    head_soft_argmax_s8(&shape, region(ws, input), &params, &soft, depth)?;
+                } else {
+                    // The plain twin: the whole logits volume, then the soft-argmax.
+                    let WholeWorkspace { cost, unet, logits } = ws;
+                    let src = match input {
+                        Region::Cost { start, len } => &cost[start..start + len],
+                        Region::Unet { start, len } => &unet[start..start + len],
+                        Region::Depth => &[][..],
+                    };
+                    conv_transpose3d_s8(&shape, src, &params, Skip::None, logits)?;
+                    soft_argmax_s8(&head_soft_shape(config::DEPTH_ROWS), logits, &soft, depth)?;
+                }
                 break;
             }
             let (src, dst) = regions(ws, input, out);
@@ -578,6 +595,43 @@ const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
     (first, planes, pad, out_pad)
 }
 
+/// Whether the head is fused with the soft-argmax ([`head_soft_argmax_s8`]: kernel == stride,
+/// no padding, one output channel, so each logit depends on one input voxel). Otherwise the
+/// streamed path computes it a step at a time (`stream_u0_head`) with the overlapping head
+/// fused with the soft-argmax ([`head_step_s8`]).
+const HEAD_FUSED: bool = {
+    let h = &LAYERS[HEAD];
+    let mut fused = h.out_channels == 1;
+    let mut a = 0;
+    while a < 3 {
+        fused = fused && h.kernel[a] == h.stride[a] && h.padding[a] == 0;
+        fused = fused && h.output_padding[a] == 0;
+        a += 1;
+    }
+    fused
+};
+/// u0 planes a step of the general head reads: `P = ceil(kernel / stride)` on the plane axis
+/// (as [`crate::kernels::head_s8::head_step_planes`]).
+const HEAD_IN_PLANES: usize =
+    (LAYERS[HEAD].kernel[0] as usize).div_ceil(LAYERS[HEAD].stride[0] as usize);
+/// u0's output planes in the streamed path: one plane for the fused head; for the general
+/// head the ring of the last [`HEAD_IN_PLANES`] planes `[P][C][H][W]` (plane `t` in slot
+/// `t mod P`) that u0 writes into and the head reads.
+const U0_OUT_LEN: usize = if HEAD_FUSED {
+    U0_PLANE_LEN
+} else {
+    HEAD_IN_PLANES * U0_PLANE_LEN
+};
+
+/// The soft-argmax shape of `rows` depth rows.
+const fn head_soft_shape(rows: usize) -> SoftArgmaxShape {
+    SoftArgmaxShape {
+        rows,
+        bins: config::DEPTH_RANGE_BINS,
+        columns: config::DEPTH_COLUMNS,
+    }
+}
+
 /// Where the d1/u1 tensor lives: the streamed phases' scratch starts after it.
 const LIVE_END: usize = match (PLAN.0[D1], PLAN.0[U0 - 1]) {
     (Region::Unet { start, len }, Region::Unet { start: s2, len: l2 }) => {
@@ -602,7 +656,7 @@ const fn max(a: usize, b: usize) -> usize {
 /// UNet buffer, and the d1/u1 tensor plus the larger of d1's window and u0's plane buffers.
 pub const WORKSPACE_LEN: usize = max(
     max(FEATURE_STREAMS.1, UNET_BUFFER_LEN),
-    LIVE_END + max(D1_WINDOW_LEN + D1_TILE_LEN, U0_PLANE_LEN + U0_GATHER_LEN),
+    LIVE_END + max(D1_WINDOW_LEN + D1_TILE_LEN, U0_GATHER_LEN + U0_OUT_LEN),
 );
 
 // The streamed plan's assumptions about the network, checked against the spec at compile time.
@@ -655,11 +709,18 @@ const _: () = {
         assert!(out_pad < u0.stride[0] as usize);
         t += 1;
     }
-    // The head turns one u0 plane into `kernel[0]` whole depth rows.
+    // The fused head turns one u0 plane into `kernel[0]` whole depth rows; the general head
+    // (head_step_s8) turns the last `P` u0 planes into the `stride[0]` depth rows
+    // `stride·t − padding + 0..stride` of step t.
     let head = &LAYERS[HEAD];
-    assert!(head.kernel[0] == head.stride[0] && head.padding[0] == 0);
-    assert!(head.in_size[0] == u0.out_size[0]);
+    assert!(matches!(head.kind, LayerKind::ConvTranspose3d) && head.out_channels == 1);
+    assert!(head.in_size[0] == u0.out_size[0] && head.in_channels == u0.out_channels);
+    assert!(head.in_size[1] == u0.out_size[1] && head.in_size[2] == u0.out_size[2]);
+    assert!(head.out_size[0] == config::DEPTH_ROWS);
+    assert!(head.out_size[1] == config::DEPTH_RANGE_BINS);
+    assert!(head.out_size[2] == config::DEPTH_COLUMNS);
     assert!(head.out_size[0] * head.out_size[2] == config::DEPTH_LEN);
+    assert!(HEAD_IN_PLANES * (head.stride[0] as usize) >= head.kernel[0] as usize);
     assert!(LIVE_END > 0);
 };
 
@@ -1056,9 +1117,12 @@ impl<'a> Model<'a> {
         Ok(())
     }
 
-    /// u0 one output plane at a time: the plane buffer first receives the cost-volume plane
+    /// u0 one output plane at a time: the plane's buffer first receives the cost-volume plane
     /// (u0's skip), then u0's transposed convolution of just the input planes that reach this
-    /// output plane adds onto it in place, then the fused head turns it into its depth rows.
+    /// output plane adds onto it in place, then the head turns it into depth rows: the fused
+    /// head its `kernel[0]` rows at once, the general head (an overlapping kernel) the
+    /// `stride[0]` rows whose last input plane this is, from the ring of the last
+    /// `P = ceil(kernel / stride)` planes that u0 writes into (plane `t` in slot `t mod P`).
     fn stream_u0_head(
         &self,
         cost: &CostVolume<'_>,
@@ -1070,7 +1134,7 @@ impl<'a> Model<'a> {
         let [in_planes, in_rows, in_width] = l.in_size;
         let in_plane = in_rows * in_width;
         let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
-        let plane = LIVE_END..LIVE_END + U0_PLANE_LEN;
+        let out = LIVE_END + U0_GATHER_LEN..LIVE_END + U0_GATHER_LEN + U0_OUT_LEN;
         let checked = self.checked(U0);
         let skip = Skip::InPlace {
             requant: self.layers[U0].skip,
@@ -1083,12 +1147,16 @@ impl<'a> Model<'a> {
         let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
         let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
-        for (t, depth_t) in depth.chunks_exact_mut(depth_rows).enumerate() {
-            for (c, out) in buf[plane.clone()].chunks_exact_mut(cost_plane).enumerate() {
-                cost.rows(c, t, 0..config::FEATURE_RANGE_BINS, out)?;
+        // One step per u0 *output* plane (the head's input planes).
+        let out_planes = l.out_size[0];
+        for t in 0..out_planes {
+            let slot = if HEAD_FUSED { 0 } else { t % HEAD_IN_PLANES };
+            let plane = out.start + slot * U0_PLANE_LEN..out.start + (slot + 1) * U0_PLANE_LEN;
+            for (c, o) in buf[plane.clone()].chunks_exact_mut(cost_plane).enumerate() {
+                cost.rows(c, t, 0..config::FEATURE_RANGE_BINS, o)?;
             }
             let (first, planes, pad, out_pad) = u0_plane(t);
-            let gather = plane.end..plane.end + l.in_channels * planes * in_plane;
+            let gather = LIVE_END..LIVE_END + l.in_channels * planes * in_plane;
             for c in 0..l.in_channels {
                 for q in 0..planes {
                     let at = gather.start + (c * planes + q) * in_plane;
@@ -1107,14 +1175,42 @@ impl<'a> Model<'a> {
             shape.output_padding[0] = out_pad;
             let (src, dst) = disjoint(buf, gather, plane.clone());
             conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst, scratch)?;
-            head_soft_argmax_s8(
-                &head_shape,
-                &buf[plane.clone()],
-                &head_params,
-                &soft,
-                depth_t,
-            )?;
+            if HEAD_FUSED {
+                let rows = t * depth_rows..(t + 1) * depth_rows;
+                let actual = depth.len();
+                let depth_t = depth.get_mut(rows).ok_or(Error::InputLength {
+                    expected: config::DEPTH_LEN,
+                    actual,
+                })?;
+                head_soft_argmax_s8(
+                    &head_shape,
+                    &buf[plane.clone()],
+                    &head_params,
+                    &soft,
+                    depth_t,
+                )?;
+            } else {
+                self.head_step(&buf[out.clone()], t, depth)?;
+            }
         }
+        if !HEAD_FUSED {
+            // Rows whose last input plane lies past u0's last (the kernel reads no plane
+            // outside the map, so the ring's stale slots are not read).
+            for t in out_planes..head_steps(&ConvShape::from(&LAYERS[HEAD])) {
+                self.head_step(&buf[out.clone()], t, depth)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Step `t` of the general (non-fused) head: [`head_step_s8`] turns the ring of the last
+    /// `P` u0 planes into the `stride[0]` depth rows whose last input plane is `t` (those
+    /// inside the map), fused with the soft-argmax.
+    fn head_step(&self, ring: &[i8], t: usize, depth: &mut [U16F16]) -> Result<(), Error> {
+        let head = &LAYERS[HEAD];
+        let params = layer_params(head, &self.layers[HEAD], HEAD);
+        let shape = ConvShape::from(head);
+        head_step_s8(&shape, ring, t, &params, &self.soft(), depth)?;
         Ok(())
     }
 }

@@ -1,5 +1,5 @@
 //! ARIS recordings (Sound Metrics DDF_05, `.aris`): typed headers, a streaming reader and a
-//! writer. See `/work/shared/ARIS.md` (the facts) and the module tests.
+//! writer. See `docs/ARIS.md` (the facts) and the module tests.
 //!
 //! Layout: a 1024-byte file header, then frames, each a 1024-byte frame header followed by
 //! `beams × samples_per_beam` u8 samples stored sample-major (`data[sample × beams + beam]`,
@@ -243,7 +243,7 @@ impl fmt::Display for SystemType {
     }
 }
 
-/// Beams implied by a frame header PingMode (ARIS.md), `None` for unknown modes.
+/// Beams implied by a frame header PingMode (docs/ARIS.md), `None` for unknown modes.
 pub fn beams_for_ping_mode(ping_mode: u32) -> Option<usize> {
     match ping_mode {
         1..=2 => Some(48),
@@ -530,7 +530,7 @@ impl FrameHeader {
 
     /// A default ARIS 3000 frame header: signature, PingMode consistent with `beams`
     /// (64 → 6, 128 → 9), ReorderedSamples = 1, standard lens, the given timing, sound speed,
-    /// SampleRate and the reported WindowStart/WindowLength computed by ARIS.md's formulas,
+    /// SampleRate and the reported WindowStart/WindowLength computed by docs/ARIS.md's formulas,
     /// NaN for every rotator field (set a roll with [`FrameHeader::with_roll_deg`]), platform
     /// roll and position 0, frame index and time 0.
     pub fn new_aris3000(
@@ -665,7 +665,7 @@ impl FrameHeader {
         Ok(c * 1e-6 / 2.0)
     }
 
-    /// Sample ranges per ARIS.md: start = SampleStartDelay·1e-6·c/2,
+    /// Sample ranges per docs/ARIS.md: start = SampleStartDelay·1e-6·c/2,
     /// step = SamplePeriod·1e-6·c/2.
     pub fn range_geometry(&self, samples_per_beam: usize) -> Result<SampleRanges> {
         let half = self.half_speed_m_per_us()?;
@@ -679,7 +679,7 @@ impl FrameHeader {
         })
     }
 
-    /// Window length per ARIS.md: SamplePeriod·SamplesPerBeam·1e-6·c/2.
+    /// Window length per docs/ARIS.md: SamplePeriod·SamplesPerBeam·1e-6·c/2.
     pub fn computed_window_length_m(&self, samples_per_beam: usize) -> Result<f64> {
         let r = self.range_geometry(samples_per_beam)?;
         Ok(r.step * samples_per_beam as f64)
@@ -723,7 +723,7 @@ impl Frame {
         self.data.chunks_exact(self.beams.max(1))
     }
 
-    /// Sample ranges from SampleStartDelay, SamplePeriod and SoundSpeed (ARIS.md).
+    /// Sample ranges from SampleStartDelay, SamplePeriod and SoundSpeed (docs/ARIS.md).
     pub fn range_geometry(&self) -> Result<SampleRanges> {
         self.header.range_geometry(self.samples_per_beam)
     }

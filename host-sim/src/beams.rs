@@ -148,7 +148,7 @@ pub fn table_by_name(name: &str) -> Result<&'static BeamTable, ArisError> {
         .ok_or_else(|| ArisError::BeamTableData(format!("no embedded table named {name}")))
 }
 
-/// Name of the table that applies to a system, beam count and lens (ARIS.md's rules).
+/// Name of the table that applies to a system, beam count and lens (docs/ARIS.md's rules).
 pub fn table_name_for(
     system: SystemType,
     beams: usize,

@@ -1,4 +1,4 @@
-//! Reading simulated sample folders (written by `host-sim simulate`, format in CONTEXT.md).
+//! Reading simulated sample folders (written by `host-sim simulate`, format in docs/SIMULATOR.md).
 //!
 //! ```no_run
 //! use host_sim::dataset::{sample_dirs, Sample};

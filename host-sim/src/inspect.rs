@@ -62,7 +62,7 @@ pub struct InspectReport {
     pub sample_period_us: u32,
     /// Frame 0 SampleStartDelay, µs.
     pub sample_start_delay_us: u32,
-    /// Computed window start, m (ARIS.md); null when the geometry is unusable.
+    /// Computed window start, m (docs/ARIS.md); null when the geometry is unusable.
     pub window_start_m: Option<f64>,
     /// Computed range step per sample, m.
     pub range_step_m: Option<f64>,

@@ -9,6 +9,7 @@ pub mod bench;
 pub mod budgets;
 pub mod calibration;
 pub mod dataset;
+pub mod figure;
 pub mod floatref;
 pub mod groundtruth;
 pub mod inspect;

@@ -17,7 +17,7 @@ use serde::Serialize;
 
 use crate::aris::ArisReader;
 use crate::metrics::{self, Accuracy, Metrics};
-use crate::{floatref, npy, polar, preview, reference_model, weights};
+use crate::{figure, floatref, npy, polar, preview, reference_model, weights};
 
 /// The bundled demo: a simulated ARIS 3000 recording and its ground truth.
 pub const DEMO_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo");
@@ -314,20 +314,48 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             None => (None, None),
         };
         let name = format!("frame{:04}", group[0]);
-        let all = vec![1.0f32; config::DEPTH_LEN];
-        let mask_f: Vec<f32> = match &gt {
-            Some((_, m)) => m.iter().map(|&b| b as u8 as f32).collect(),
-            None => all.clone(),
+        // int8 | float | ground truth (labels clamped, as the metric reads them) | per-pixel
+        // |int8 − truth|; without ground truth the last panel is |int8 − float|.
+        let truth = gt.as_ref().map(|(d, _)| metrics::clamp_labels(d));
+        let error: Vec<f32> = match &truth {
+            Some(t) => depth_int8
+                .iter()
+                .zip(t)
+                .map(|(a, b)| (a - b).abs())
+                .collect(),
+            None => depth_int8
+                .iter()
+                .zip(&depth_float)
+                .map(|(a, b)| (a - b).abs())
+                .collect(),
         };
-        let mut row = vec![
-            preview::depth_image(&depth_int8, &all, 4),
-            preview::depth_image(&depth_float, &all, 4),
+        let mut panels = vec![
+            figure::Panel::Depth {
+                title: "int8",
+                depth: &depth_int8,
+            },
+            figure::Panel::Depth {
+                title: "float",
+                depth: &depth_float,
+            },
         ];
-        if let Some((d, _)) = &gt {
-            row.push(preview::depth_image(d, &mask_f, 4));
+        if let Some(t) = &truth {
+            panels.push(figure::Panel::Depth {
+                title: "ground truth",
+                depth: t,
+            });
         }
+        panels.push(figure::Panel::Error {
+            title: if truth.is_some() {
+                "|int8 - truth|"
+            } else {
+                "|int8 - float|"
+            },
+            error: &error,
+            max_mm: 200.0,
+        });
         preview::save_png(
-            &preview::hstack(&row),
+            &figure::depth_figure(&panels),
             &args.out.join(format!("{name}_depth.png")),
         )?;
         let keep: Vec<bool> = match &gt {

@@ -1,5 +1,5 @@
 //! `host-sim simulate`: draws scenes, renders every view as a one-frame ARIS 3000 recording,
-//! computes the ground truth and writes the sample folders (format in CONTEXT.md):
+//! computes the ground truth and writes the sample folders (format in docs/SIMULATOR.md):
 //!
 //! ```text
 //! DIR/<split>/<000000>/view0.aris view1.aris [view2.aris]

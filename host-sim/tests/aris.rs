@@ -94,7 +94,7 @@ fn real_recording_geometry_matches_aris_md_formulas() {
         assert!((g.step - period * 1e-6 * c / 2.0).abs() < 1e-12);
         assert_eq!(g.samples, 2000);
         assert!((f.window_length_m().unwrap() - length).abs() < 1e-9);
-        // The header's own WindowStart agrees within centimetres (ARIS.md).
+        // The header's own WindowStart agrees within centimetres (docs/ARIS.md).
         let reported = f64::from(f32_at(&raw, base + 52));
         assert!(
             (reported - start).abs() < 0.05,

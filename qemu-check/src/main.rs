@@ -16,6 +16,7 @@ use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_
 use epssn::kernels::cost_volume_s8::{
     cost_volume_s8, cost_volume_s8_plain, CostShape, CostVolume, SourceView,
 };
+use epssn::kernels::head_s8::{head_s8, head_step_planes, head_step_s8, head_steps};
 use epssn::kernels::soft_argmax_s8::{
     head_soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
 };
@@ -139,7 +140,9 @@ fn main() -> ! {
             }
         }
     }
-    // Fused streaming head vs head transposed convolution + soft-argmax (plain kernels),
+    // The head (fused streaming kernel, or the overlapping head fused with the soft-argmax on
+    // the whole input and step by step from rings) vs the plain transposed convolution + plain
+    // soft-argmax (round 2: a bias beyond the fast requantisation's range),
     // and the cost volume with the real warp tables, optimised vs plain.
     let exp: [u16; 256] =
         core::array::from_fn(|d| (65535.0 * approx_exp(-(d as f64) * 0.05) + 0.5) as u16);
@@ -151,9 +154,12 @@ fn main() -> ! {
     };
     let head = &config::LAYER_HEAD;
     let hs = ConvShape::from(head);
-    for round in 0..2 {
+    for round in 0..3 {
         rng.fill(&mut w[..head.weight_len()]);
         bias[0] = (rng.next() % 20_001) as i32 - 10_000;
+        if round == 2 {
+            bias[0] = 1 << 30;
+        }
         rq[0] = Requant {
             multiplier: (1 << 30) + (rng.next() % (1 << 30)) as i32,
             shift: -8,
@@ -165,14 +171,42 @@ fn main() -> ! {
             input_offset: 0,
             relu: false,
         };
-        if round == 0 {
+        if round != 1 {
             rng.fill(&mut input[..head.input_len()]);
         } else {
             input[..head.input_len()].fill(127);
         }
         let mut d_fused = [U16F16::ZERO; config::DEPTH_LEN];
         let mut d_plain = [U16F16::ZERO; config::DEPTH_LEN];
-        let r1 = head_soft_argmax_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused);
+        let ss = SoftArgmaxShape {
+            rows: config::DEPTH_ROWS,
+            bins: config::DEPTH_RANGE_BINS,
+            columns: config::DEPTH_COLUMNS,
+        };
+        // A head whose kernel equals its stride is fused by head_soft_argmax_s8; any head
+        // (overlapping or not) by head_s8 on the whole input and head_step_s8 step by step
+        // from rings of the last P planes (built in `b`, absent planes filled with garbage).
+        let fused = hs.kernel == hs.stride && hs.padding == [0; 3];
+        let mut r1 = if fused {
+            head_soft_argmax_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused)
+        } else {
+            head_s8(&hs, &input[..head.input_len()], &p, &sp, &mut d_fused)
+        };
+        let mut d_steps = [U16F16::ZERO; config::DEPTH_LEN];
+        let [planes, rows_in, cols_in] = hs.in_size;
+        let (hw, np) = (rows_in * cols_in, head_step_planes(&hs));
+        let ring_len = hs.in_channels * np * hw;
+        for t in 0..head_steps(&hs) {
+            // Slot z mod P holds plane z; the other slots and planes past the end: garbage.
+            b[..ring_len].fill(-99);
+            for z in (t + 1).saturating_sub(np)..=t.min(planes - 1) {
+                for c in 0..hs.in_channels {
+                    let dst = &mut b[((z % np) * hs.in_channels + c) * hw..][..hw];
+                    dst.copy_from_slice(&input[(c * planes + z) * hw..][..hw]);
+                }
+            }
+            r1 = r1.and(head_step_s8(&hs, &b[..ring_len], t, &p, &sp, &mut d_steps));
+        }
         let r2 = conv_transpose3d_s8_plain(
             &hs,
             &input[..head.input_len()],
@@ -180,16 +214,13 @@ fn main() -> ! {
             Skip::None,
             &mut a[..head.output_len()],
         );
-        let ss = SoftArgmaxShape {
-            rows: 32,
-            bins: 64,
-            columns: 64,
-        };
         let r3 = soft_argmax_s8_plain(&ss, &a[..head.output_len()], &sp, &mut d_plain);
-        let same = r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain;
+        let same =
+            r1.is_ok() && r2.is_ok() && r3.is_ok() && d_fused == d_plain && d_steps == d_plain;
         hprintln!(
-            "round {} fused head + soft-argmax: {}",
+            "round {} {} head + soft-argmax: {}",
             round,
+            if fused { "fused" } else { "overlapping" },
             if same { "bit-exact" } else { "MISMATCH" }
         );
         checked += 1;

@@ -18,6 +18,7 @@ pub mod conv2d_s8;
 pub mod conv3d_s8;
 pub mod conv_transpose3d_s8;
 pub mod cost_volume_s8;
+pub mod head_s8;
 mod line;
 pub mod soft_argmax_s8;
 
@@ -549,7 +550,28 @@ fn check_lengths(
 /// Small deterministic generator for the kernels' unit tests.
 #[cfg(test)]
 pub(crate) mod testutil {
+    use super::soft_argmax_s8::SoftArgmaxParams;
     use super::*;
+    use crate::config;
+    use fixed::types::U16F16;
+
+    /// `EXP[d] = round(65535 · exp(−d · scale))`.
+    pub fn exp_table(scale: f64) -> [u16; 256] {
+        core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
+    }
+
+    /// Soft-argmax parameters of the compiled depth grid with end bins reaching `end_offset`
+    /// steps beyond the window.
+    pub fn soft_params(exp: &[u16; 256], end_offset: u16) -> SoftArgmaxParams<'_> {
+        let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
+        let base = config::R_MIN_M - end_offset as f64 * step;
+        SoftArgmaxParams {
+            exp,
+            r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
+            step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
+            end_offset,
+        }
+    }
 
     pub struct Rng(pub u64);
 

@@ -47,7 +47,7 @@ pub struct SoftArgmaxParams<'a> {
 /// Largest [`SoftArgmaxParams::end_offset`].
 pub const MAX_END_OFFSET: u16 = 256;
 
-fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
+pub(super) fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
     if bins == 0 || bins > MAX_BINS {
         return Err(KernelError::RangeBins { bins });
     }
@@ -72,7 +72,7 @@ fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError
 /// `S`, `T = Σ e_i·i`, the end weights `e_0`, `e_{R−1}` and `R` → depth (the contract's
 /// integer formula, end bins moved out by `K` and the result clamped to the window).
 #[inline(always)]
-fn depth_of(
+pub(super) fn depth_of(
     s: u32,
     t: u32,
     first: u32,
@@ -399,7 +399,7 @@ fn head_by_columns<R: Apply>(
 
 /// Soft-argmax of one ray whose maximum logit `m` is known (the contract's sums).
 #[inline(always)]
-fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
+pub(super) fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
     let (mut s, mut t) = (0u32, 0u32);
     for (i, &q) in logits.iter().enumerate() {
         // m ≥ q, so m − q is in 0..=255 and the u8 cast is exact.
@@ -457,26 +457,11 @@ fn head_by_rays(
 #[cfg(test)]
 mod tests {
     use super::super::conv_transpose3d_s8::conv_transpose3d_s8_plain;
-    use super::super::testutil::{params, Rng};
+    use super::super::testutil::{exp_table, params, soft_params, Rng};
     use super::super::Skip;
     use super::*;
     use crate::config;
     use std::vec;
-
-    fn exp_table(scale: f64) -> [u16; 256] {
-        core::array::from_fn(|d| libm::round(65535.0 * libm::exp(-(d as f64) * scale)) as u16)
-    }
-
-    fn epssn_params(exp: &[u16; 256], end_offset: u16) -> SoftArgmaxParams<'_> {
-        let step = (config::R_MAX_M - config::R_MIN_M) / (config::DEPTH_RANGE_BINS - 1) as f64;
-        let base = config::R_MIN_M - end_offset as f64 * step;
-        SoftArgmaxParams {
-            exp,
-            r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
-            step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
-            end_offset,
-        }
-    }
 
     #[test]
     fn optimised_equals_plain_random() {
@@ -488,7 +473,7 @@ mod tests {
                 columns: 1 + rng.below(150),
             };
             let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
-            let p = epssn_params(&exp, rng.below(12) as u16);
+            let p = soft_params(&exp, rng.below(12) as u16);
             let n = shape.rows * shape.bins * shape.columns;
             let logits = rng.i8s(n);
             let rays = shape.rows * shape.columns;
@@ -502,7 +487,7 @@ mod tests {
     #[test]
     fn equal_logits_give_the_middle_and_one_hot_gives_the_bin() {
         let exp = exp_table(0.2);
-        let p = epssn_params(&exp, 0);
+        let p = soft_params(&exp, 0);
         let shape = SoftArgmaxShape {
             rows: 1,
             bins: 64,
@@ -533,8 +518,18 @@ mod tests {
     fn fused_head_equals_conv_transpose_then_soft_argmax() {
         let mut rng = Rng(2024);
         let exp = exp_table(0.05);
-        let p = epssn_params(&exp, 3);
-        let mut shapes = vec![ConvShape::from(&config::LAYER_HEAD)];
+        let p = soft_params(&exp, 3);
+        // EPSSN-S's fused head shape (the compiled spec's head may overlap, which is not fused).
+        let mut shapes = vec![ConvShape {
+            in_channels: 8,
+            out_channels: 1,
+            kernel: [2, 1, 4],
+            stride: [2, 1, 4],
+            padding: [0; 3],
+            output_padding: [0; 3],
+            in_size: [16, 64, 16],
+            out_size: [32, 64, 64],
+        }];
         // Too large for the column buffers: the ray-by-ray path.
         shapes.push(ConvShape {
             in_channels: 70,

@@ -82,6 +82,11 @@ pub struct EvalArgs {
     /// accuracy and its mean absolute depth difference from the float model.
     #[arg(long)]
     pub int8: bool,
+    /// Compute the float depth maps with the f64 reference network on folded weights
+    /// (`host_sim::floatref`, no burn) instead of the burn model: the same network, independent
+    /// of the training backend and of the build profile.
+    #[arg(long)]
+    pub float_reference: bool,
 }
 
 /// One row of the loss history.
@@ -474,9 +479,30 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         None
     };
     let mut ws = Box::new(epssn::model::Workspace::new());
+    let folded = if args.float_reference {
+        let bundle = crate::weights::load(&weights)?;
+        Some(crate::floatref::fold_all(&bundle.float)?)
+    } else {
+        None
+    };
     for chunk in set.chunks(8) {
         let refs: Vec<&[Vec<u8>]> = chunk.iter().map(|s| s.views.as_slice()).collect();
-        for (s, d) in chunk.iter().zip(model.predict_batch(&refs)?) {
+        let float_maps = match &folded {
+            Some(f) => chunk
+                .iter()
+                .map(|s| {
+                    // One view is fed as its own source, as the burn model's ablation does.
+                    let views: Vec<&[u8]> = if s.views.len() == 1 {
+                        vec![&s.views[0], &s.views[0]]
+                    } else {
+                        s.views.iter().map(|v| v.as_slice()).collect()
+                    };
+                    Ok(crate::floatref::run_folded(f, &views, &mut |_, _| {})?.depth)
+                })
+                .collect::<Result<Vec<_>>>()?,
+            None => model.predict_batch(&refs)?,
+        };
+        for (s, d) in chunk.iter().zip(float_maps) {
             if let Some(q) = &int8 {
                 let dq = int8_depth(q, &s.views, &mut ws)?;
                 let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();

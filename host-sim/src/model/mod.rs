@@ -1030,7 +1030,7 @@ mod tests {
         assert_eq!(shapes["f0.conv.weight"], vec![8, 1, 3, 3]);
         assert_eq!(shapes["d2.conv.weight"], vec![16, 8, 3, 3, 3]);
         assert_eq!(shapes["u1.conv.weight"], vec![16, 8, 3, 3, 3]);
-        assert_eq!(shapes["head.conv.weight"], vec![8, 1, 2, 1, 4]);
+        assert_eq!(shapes["head.conv.weight"], vec![8, 1, 4, 1, 8]);
         assert!(shapes.contains_key("m0.bn.running_var"));
         assert!(!shapes.contains_key("f3.bn.gamma"));
         // A spec whose head does not give E×R×A is refused.

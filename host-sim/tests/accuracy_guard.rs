@@ -1,0 +1,112 @@
+//! CI's accuracy guard: the shipped model (the one the firmware embeds) on a small held-out set
+//! simulated at test time from a fixed seed, every scene, against the figures committed in
+//! `weights/ACCURACY_GUARD.json`. Fails when the float model's MAE (the paper's formula: all
+//! pixels, labels clamped) regresses by more than 10 % on a scene, or when int8 drifts more than
+//! 5 % from float.
+//!
+//! After a deliberate change of the shipped model, rewrite the committed figures with
+//! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the file.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Pairs per scene: small enough for CI, enough that one odd pair does not swing the mean.
+const PAIRS: usize = 48;
+/// A seed no training or test split uses (those use 1; validation 2).
+const SEED: u64 = 77;
+const SCENES: [&str; 3] = ["sphere", "terrain", "artificial"];
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn host_sim(args: &[&str]) -> serde_json::Value {
+    let o = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .current_dir(root())
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "host-sim {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    if args.contains(&"--json") {
+        serde_json::from_slice(&o.stdout).unwrap()
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+#[test]
+fn shipped_model_keeps_its_accuracy_on_every_scene() {
+    let data = tempfile::tempdir().unwrap();
+    let mut measured = serde_json::Map::new();
+    for scene in SCENES {
+        let out = data.path().join(scene);
+        let out = out.to_str().unwrap();
+        let pairs = PAIRS.to_string();
+        let seed = SEED.to_string();
+        host_sim(&[
+            "simulate",
+            "--scene",
+            scene,
+            "--split",
+            "test",
+            "--pairs",
+            &pairs,
+            "--seed",
+            &seed,
+            "--out",
+            out,
+            "--no-preview",
+        ]);
+        // No --weights: the model the firmware ships.
+        // The float maps from the f64 reference network: burn's flex backend gives wrong float
+        // maps for batches of 8 in the dev profile this test runs in (release is right).
+        let v = host_sim(&[
+            "eval",
+            "--data",
+            out,
+            "--int8",
+            "--float-reference",
+            "--json",
+        ]);
+        let float = v["float"]["mae"].as_f64().unwrap();
+        let int8 = v["int8"]["mae"].as_f64().unwrap();
+        assert!(float.is_finite() && int8.is_finite(), "{scene}: {v}");
+        measured.insert(
+            scene.to_string(),
+            serde_json::json!({ "float_mae": float, "int8_mae": int8 }),
+        );
+    }
+    let file = root().join("weights/ACCURACY_GUARD.json");
+    let doc = serde_json::json!({
+        "what": "shipped model, `host-sim eval --int8 --float-reference` on `simulate --split test --seed 77 --pairs 48` per scene; mae = the paper's formula (all pixels, labels clamped), mm",
+        "pairs": PAIRS,
+        "seed": SEED,
+        "scenes": measured,
+    });
+    if std::env::var_os("EPSSN_BLESS").is_some() {
+        std::fs::write(&file, serde_json::to_string_pretty(&doc).unwrap() + "\n").unwrap();
+        return;
+    }
+    let committed: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    for scene in SCENES {
+        let want = committed["scenes"][scene]["float_mae"].as_f64().unwrap();
+        let got = &measured[scene];
+        let (float, int8) = (
+            got["float_mae"].as_f64().unwrap(),
+            got["int8_mae"].as_f64().unwrap(),
+        );
+        assert!(
+            float <= want * 1.10,
+            "{scene}: float MAE {float:.2} mm regressed beyond the committed {want:.2} mm + 10 %"
+        );
+        assert!(
+            (int8 - float).abs() <= 0.05 * float,
+            "{scene}: int8 MAE {int8:.2} mm drifts more than 5 % from float {float:.2} mm"
+        );
+    }
+}

@@ -1,0 +1,888 @@
+//! The head: a transposed convolution with one output channel whose kernel may overlap
+//! (kernel ≥ stride, any padding), fused with the soft-argmax along range
+//! ([`super::soft_argmax_s8`]), computed a step at a time and never storing the logits.
+//!
+//! Shape `[D][H][W]` → `[E][R][A]` (input planes, range rows, columns → elevation rows, range
+//! bins, azimuth columns). Step `t` gives the `sd` depth rows `e = sd·t − pd + ψ`
+//! (`ψ < sd`) whose last input plane is `t`: they read the `P = ceil(kd / sd)` planes
+//! `t − P + 1 ..= t` (tap `kz = ψ + sd·j` for plane `t − j`), which the streamed model keeps in
+//! a ring of `P` planes `[P][C][H][W]`, plane `z` in slot `z mod P` ([`head_step_s8`]: nothing
+//! is shifted, and u0 writes each new plane straight into its slot); [`head_s8`] runs every step on a
+//! whole `[C][D][H][W]` input. Planes outside `0..D` read as absent (no contribution).
+//!
+//! On the column axis an output column `a = sw·g − pw + φ` (`φ < sw`) reads the
+//! `Q = ceil(kw / sw)` input columns `g − Q + 1 ..= g` (tap `kx = φ + sw·j` for column
+//! `g − j`), so every ray of "column position" `g` and step `t` reads the same `P × Q × C`
+//! inputs per range row. The optimised kernel gathers them once per `(t, g)` as i16 pairs
+//! (`[y][column slot][plane][channel]`, one new column per position: column `x` lives in slot
+//! `x mod Q` and the weights are prepared for each rotation), computes every ray phase
+//! `(ψ, φ)` of the position two rays × two range bins per [`crate::dsp::dot2x2`], requantises
+//! with [`FastRequant`] when the accumulator bound allows, tracks each ray's maximum while
+//! producing its logits, and reduces the ray at once (single-pass soft-argmax).
+//!
+//! The range axis must have kernel == stride, no padding and no output padding for the
+//! optimised kernel (bin `y·kh + ky` reads only range row `y`); other shapes, and shapes too
+//! large for its stack buffers, run the plain twin.
+//!
+//! MACs per logit: `C · ceil(kd / sd) · ceil(kw / sw)` (zero taps included), plus the
+//! soft-argmax.
+
+use super::soft_argmax_s8::{
+    check_params, ray_depth_max, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
+};
+use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
+use crate::requant::{Apply, FastRequant};
+use fixed::types::U16F16;
+
+/// Most words of the gathered inputs of one column position (`H` range rows of
+/// `Q · P · up4(C) / 2` words).
+pub const HEAD_COL_WORDS: usize = 1024;
+/// Most words of the prepared weights (`Q` rotations × ray pairs × `kh` × two rays' words).
+pub const HEAD_W_WORDS: usize = 512;
+
+/// Input planes one step reads: `P = ceil(kd / sd)` (1 for a zero stride, which the kernels
+/// refuse anyway).
+pub const fn head_step_planes(shape: &ConvShape) -> usize {
+    if shape.stride[0] == 0 {
+        1
+    } else {
+        shape.kernel[0].div_ceil(shape.stride[0])
+    }
+}
+
+/// Steps that cover every depth row: `t` in `0..head_steps(shape)`, the last one the first
+/// step whose rows reach row `E − 1` (steps past `D − 1` read only absent planes but the
+/// bias and the earlier planes' taps).
+/// Saturates instead of overflowing on shapes the kernels would refuse.
+pub const fn head_steps(shape: &ConvShape) -> usize {
+    if shape.stride[0] == 0 || shape.out_size[0] == 0 {
+        0
+    } else {
+        let last = (shape.out_size[0] - 1).saturating_add(shape.padding[0]) / shape.stride[0];
+        last.saturating_add(1)
+    }
+}
+
+/// Where the planes of step `t` are: a ring `[P][C][H][W]` (slot `z mod P` holds plane `z`)
+/// or the whole input `[C][D][H][W]`.
+#[derive(Clone, Copy)]
+struct Planes<'a> {
+    data: &'a [i8],
+    /// Elements between channels.
+    channel: usize,
+    /// `H · W`.
+    plane: usize,
+    /// `Some((P, C·H·W))` for a ring.
+    ring: Option<(usize, usize)>,
+    /// `D`.
+    depth: usize,
+    t: usize,
+}
+
+impl Planes<'_> {
+    /// Offset within a channel of plane `t − j`, or `None` if it lies outside `0..D`.
+    #[inline(always)]
+    fn at(&self, j: usize) -> Option<usize> {
+        let z = self.t.checked_sub(j)?;
+        if z >= self.depth {
+            return None;
+        }
+        Some(match self.ring {
+            Some((p, slot)) => (z % p) * slot,
+            None => z * self.plane,
+        })
+    }
+}
+
+/// Validates the head (shape, parameters, soft-argmax, depth map); returns the worst-case
+/// accumulator.
+fn check(
+    shape: &ConvShape,
+    input_len: usize,
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &[U16F16],
+) -> Result<i64, KernelError> {
+    if shape.out_channels != 1 {
+        return Err(KernelError::NotStreamableHead);
+    }
+    let out_len = mul3(shape.out_size)?;
+    let bound = check_conv_transpose(shape, input_len, params, out_len)?;
+    let [rows, bins, columns] = shape.out_size;
+    check_params(soft, bins)?;
+    super::expect(Operand::Depth, rows * columns, depth.len())?;
+    Ok(bound)
+}
+
+/// Length of the ring `[P][C][H][W]` of [`head_step_s8`].
+fn ring_len(shape: &ConvShape) -> Result<usize, KernelError> {
+    let [_, h, w] = shape.in_size;
+    mul3([shape.in_channels, head_step_planes(shape), h])?
+        .checked_mul(w)
+        .ok_or(KernelError::SizeOverflow)
+}
+
+/// The whole-input length, which [`check_conv_transpose`] expects, for a ring.
+fn whole_len(shape: &ConvShape) -> Result<usize, KernelError> {
+    mul3(shape.in_size)?
+        .checked_mul(shape.in_channels)
+        .ok_or(KernelError::SizeOverflow)
+}
+
+fn ring_planes<'a>(shape: &ConvShape, ring: &'a [i8], t: usize) -> Planes<'a> {
+    let [d, h, w] = shape.in_size;
+    let p = head_step_planes(shape);
+    Planes {
+        data: ring,
+        channel: h * w,
+        plane: h * w,
+        ring: Some((p, shape.in_channels * h * w)),
+        depth: d,
+        t,
+    }
+}
+
+fn whole_planes<'a>(shape: &ConvShape, input: &'a [i8], t: usize) -> Planes<'a> {
+    let [d, h, w] = shape.in_size;
+    Planes {
+        data: input,
+        channel: d * h * w,
+        plane: h * w,
+        ring: None,
+        depth: d,
+        t,
+    }
+}
+
+/// Step `t` of the head, plain reference: the depth rows `sd·t − pd + 0..sd` inside the map,
+/// from the ring `[P][C][H][W]` of input planes `t − P + 1 ..= t` (plane `z` in slot `z mod P`, `P` from
+/// [`head_step_planes`]; slots of planes outside `0..D` are not read). Each logit straight
+/// from the transposed convolution's definition, then [`soft_argmax_s8_plain`] per ray.
+/// `shape` is the whole head, `depth` the whole `[E][A]` map.
+pub fn head_step_s8_plain(
+    shape: &ConvShape,
+    ring: &[i8],
+    t: usize,
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    check(shape, whole_len(shape)?, params, soft, depth)?;
+    super::expect(Operand::Input, ring_len(shape)?, ring.len())?;
+    step_plain(shape, &ring_planes(shape, ring, t), params, soft, depth);
+    Ok(())
+}
+
+/// Step `t` of the head, optimised (see the module documentation); same arguments and bits
+/// as [`head_step_s8_plain`].
+pub fn head_step_s8(
+    shape: &ConvShape,
+    ring: &[i8],
+    t: usize,
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    let bound = check(shape, whole_len(shape)?, params, soft, depth)?;
+    super::expect(Operand::Input, ring_len(shape)?, ring.len())?;
+    let planes = ring_planes(shape, ring, t);
+    run(shape, bound, params, soft, depth, |_| planes);
+    Ok(())
+}
+
+/// The whole head on a whole input `[C][D][H][W]` → depth `[E][A]`, plain reference (every
+/// step of [`head_step_s8_plain`]).
+pub fn head_s8_plain(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    check(shape, input.len(), params, soft, depth)?;
+    for t in 0..head_steps(shape) {
+        step_plain(shape, &whole_planes(shape, input, t), params, soft, depth);
+    }
+    Ok(())
+}
+
+/// The whole head on a whole input, optimised; same bits as [`head_s8_plain`].
+pub fn head_s8(
+    shape: &ConvShape,
+    input: &[i8],
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) -> Result<(), KernelError> {
+    let bound = check(shape, input.len(), params, soft, depth)?;
+    run(shape, bound, params, soft, depth, |t| {
+        whole_planes(shape, input, t)
+    });
+    Ok(())
+}
+
+/// Depth row of phase `ψ` of step `t`, if inside the map.
+#[inline(always)]
+fn row_of(shape: &ConvShape, t: usize, psi: usize) -> Option<usize> {
+    let e = shape.stride[0].checked_mul(t)?.checked_add(psi)?;
+    let e = e.checked_sub(shape.padding[0])?;
+    (e < shape.out_size[0]).then_some(e)
+}
+
+/// One step, plain (validated shape; any range-axis geometry).
+fn step_plain(
+    shape: &ConvShape,
+    src: &Planes<'_>,
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) {
+    let [_, ih, iw] = shape.in_size;
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let [_, ph, pw] = shape.padding;
+    let [_, bins, columns] = shape.out_size;
+    let taps = kd * kh * kw;
+    let (bias, rq) = (params.bias[0], params.requant[0]);
+    let planes = head_step_planes(shape);
+    let ss = SoftArgmaxShape {
+        rows: 1,
+        bins,
+        columns: 1,
+    };
+    let mut logits = [0i8; MAX_BINS];
+    for psi in 0..sd {
+        let Some(e) = row_of(shape, src.t, psi) else {
+            continue;
+        };
+        for a in 0..columns {
+            for (i, l) in logits[..bins].iter_mut().enumerate() {
+                let mut acc = bias;
+                for j in 0..planes {
+                    // Plane t − j reaches row e through tap kz = ψ + sd·j.
+                    let kz = psi + sd * j;
+                    let Some(poff) = src.at(j) else { continue };
+                    if kz >= kd {
+                        continue;
+                    }
+                    for y in 0..ih {
+                        let Some(ky) = (i + ph).checked_sub(sh * y).filter(|&k| k < kh) else {
+                            continue;
+                        };
+                        for x in 0..iw {
+                            let Some(kx) = (a + pw).checked_sub(sw * x).filter(|&k| k < kw) else {
+                                continue;
+                            };
+                            for c in 0..shape.in_channels {
+                                let v = src.data[c * src.channel + poff + y * iw + x] as i32
+                                    + params.input_offset;
+                                let w = params.weights[c * taps + (kz * kh + ky) * kw + kx];
+                                acc += v * w as i32;
+                            }
+                        }
+                    }
+                }
+                *l = finish(rq.apply(acc), params.relu, None);
+            }
+            let at = e * columns + a;
+            // The shape is validated (bins ≤ MAX_BINS), so this cannot fail.
+            let _ = soft_argmax_s8_plain(&ss, &logits[..bins], soft, &mut depth[at..at + 1]);
+        }
+    }
+}
+
+/// `x` rounded up to a multiple of 4.
+fn up4(x: usize) -> usize {
+    x.div_ceil(4) * 4
+}
+
+/// Sizes of the optimised kernel.
+#[derive(Clone, Copy)]
+struct Fast {
+    /// `P`, `Q`.
+    planes: usize,
+    cols: usize,
+    /// Channels padded to a multiple of 4.
+    vp: usize,
+    /// Words per range row: `Q · P · vp / 2` (even).
+    n: usize,
+    /// Ray phases `sd · sw` and their pairs.
+    rays: usize,
+    pairs: usize,
+}
+
+/// The optimised kernel's sizes, if the shape suits it and fits its buffers.
+fn fast_sizes(shape: &ConvShape) -> Option<Fast> {
+    let [_, ih, _] = shape.in_size;
+    let [_, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    if kh != sh || shape.padding[1] != 0 || shape.output_padding[1] != 0 || sw == 0 || sd == 0 {
+        return None;
+    }
+    let planes = head_step_planes(shape);
+    let cols = kw.div_ceil(sw);
+    let vp = up4(shape.in_channels);
+    let n = cols.checked_mul(planes)?.checked_mul(vp / 2)?;
+    let rays = sd.checked_mul(sw)?;
+    let pairs = rays.div_ceil(2);
+    let w_words = cols
+        .checked_mul(pairs)?
+        .checked_mul(kh)?
+        .checked_mul(2 * n)?;
+    let col_words = ih.checked_mul(n)?;
+    (w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS).then_some(Fast {
+        planes,
+        cols,
+        vp,
+        n,
+        rays,
+        pairs,
+    })
+}
+
+/// Runs every step `planes_of` gives (one, or all of them), optimised when the shape allows,
+/// else plain. Shape, parameters and `depth` are validated.
+fn run<'a>(
+    shape: &ConvShape,
+    bound: i64,
+    params: &ConvParams<'_>,
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+    planes_of: impl Fn(usize) -> Planes<'a>,
+) {
+    let one = planes_of(0).ring.is_some();
+    let steps = if one { 0..1 } else { 0..head_steps(shape) };
+    let Some(f) = fast_sizes(shape) else {
+        for t in steps {
+            let p = planes_of(t);
+            step_plain(shape, &p, params, soft, depth);
+        }
+        return;
+    };
+    let mut wbuf = [0u32; HEAD_W_WORDS];
+    prepare_weights(shape, &f, params, &mut wbuf);
+    let rq = params.requant[0];
+    let fast = rq.fits_fast(bound);
+    for t in steps {
+        let p = planes_of(t);
+        if fast {
+            step_fast(
+                shape,
+                &f,
+                &p,
+                params,
+                FastRequant::new(rq),
+                &wbuf,
+                soft,
+                depth,
+            );
+        } else {
+            step_fast(shape, &f, &p, params, rq, &wbuf, soft, depth);
+        }
+    }
+}
+
+/// Weights of rotation `r` (column position `g ≡ r mod Q`), ray pair `p`, range tap `ky`:
+/// the two rays' words interleaved (an odd last ray paired with itself), word `k` covering
+/// slot `s`, plane tap `j` and channels `2m, 2m + 1` with `k = (s·P + j)·vp/2 + m`; slot `s`
+/// holds column tap `(r − s) mod Q`. Taps outside the kernel are zero.
+fn prepare_weights(shape: &ConvShape, f: &Fast, params: &ConvParams<'_>, wbuf: &mut [u32]) {
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, _, sw] = shape.stride;
+    let taps = kd * kh * kw;
+    let ic = shape.in_channels;
+    let half_vp = f.vp / 2;
+    for r in 0..f.cols {
+        for p in 0..f.pairs {
+            for ky in 0..kh {
+                let base = ((r * f.pairs + p) * kh + ky) * 2 * f.n;
+                for half in 0..2 {
+                    let ray = (2 * p + half).min(f.rays - 1);
+                    let (psi, phi) = (ray / sw, ray % sw);
+                    for s in 0..f.cols {
+                        let jx = (r + f.cols - s) % f.cols;
+                        let kx = phi + sw * jx;
+                        for j in 0..f.planes {
+                            let kz = psi + sd * j;
+                            let w = |c: usize| {
+                                if c < ic && kz < kd && kx < kw {
+                                    params.weights[c * taps + (kz * kh + ky) * kw + kx] as i16
+                                } else {
+                                    0
+                                }
+                            };
+                            for m in 0..half_vp {
+                                let k = (s * f.planes + j) * half_vp + m;
+                                wbuf[base + 2 * k + half] =
+                                    crate::dsp::pack(w(2 * m), w(2 * m + 1));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Gathers input column `x` (if inside `0..W`, else zeros) of every plane tap and channel
+/// into slot `s` of the range rows' words (offset added), a channel pair per word.
+#[inline(always)]
+fn gather_column(
+    shape: &ConvShape,
+    f: &Fast,
+    src: &Planes<'_>,
+    off: i16,
+    x: Option<usize>,
+    s: usize,
+    col: &mut [u32; HEAD_COL_WORDS],
+) {
+    let [_, ih, iw] = shape.in_size;
+    let ic = shape.in_channels;
+    let n = f.n;
+    let half_vp = f.vp / 2;
+    let rows = &mut col[..ih * n];
+    let hw = ih * iw;
+    for j in 0..f.planes {
+        let poff = src.at(j);
+        for m in 0..half_vp {
+            let k = (s * f.planes + j) * half_vp + m;
+            // Channel c's plane, if it exists and the column is inside.
+            let plane = |c: usize| match (x, poff) {
+                (Some(_), Some(poff)) if c < ic => Some(&src.data[c * src.channel + poff..][..hw]),
+                _ => None,
+            };
+            let x = x.unwrap_or(0);
+            match (plane(2 * m), plane(2 * m + 1)) {
+                (Some(pa), Some(pb)) => {
+                    let it = rows.chunks_exact_mut(n);
+                    for ((d, ra), rb) in it.zip(pa.chunks_exact(iw)).zip(pb.chunks_exact(iw)) {
+                        d[k] = crate::dsp::pack(ra[x] as i16 + off, rb[x] as i16 + off);
+                    }
+                }
+                (Some(pa), None) => {
+                    for (d, ra) in rows.chunks_exact_mut(n).zip(pa.chunks_exact(iw)) {
+                        d[k] = crate::dsp::pack(ra[x] as i16 + off, 0);
+                    }
+                }
+                _ => {
+                    for d in rows.chunks_exact_mut(n) {
+                        d[k] = 0;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// One step, optimised (validated shape that [`fast_sizes`] accepts, weights prepared).
+#[allow(clippy::too_many_arguments)]
+fn step_fast<R: Apply>(
+    shape: &ConvShape,
+    f: &Fast,
+    src: &Planes<'_>,
+    params: &ConvParams<'_>,
+    rq: R,
+    wbuf: &[u32; HEAD_W_WORDS],
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) {
+    let [_, ih, iw] = shape.in_size;
+    let kh = shape.kernel[1];
+    let [sd, _, sw] = shape.stride;
+    let pw = shape.padding[2];
+    let [_, bins, columns] = shape.out_size;
+    let n = f.n;
+    let t = src.t;
+    if (0..sd).all(|psi| row_of(shape, t, psi).is_none()) {
+        return;
+    }
+    // |offset| ≤ 255 is validated, so offset inputs fit i16.
+    let (bias, off) = (params.bias[0], params.input_offset as i16);
+    // Column positions g with a column a = sw·g − pw + φ inside 0..A.
+    let g_lo = pw / sw;
+    let g_hi = (columns - 1 + pw) / sw;
+    let mut col = [0u32; HEAD_COL_WORDS];
+    let mut logits = [[0i8; MAX_BINS]; 2];
+    let inside = |x: usize| (x < iw).then_some(x);
+    for j in 0..f.cols {
+        // Columns g_lo − j, in slot (g_lo − j) mod Q.
+        let x = g_lo.checked_sub(j).and_then(inside);
+        let s = (g_lo % f.cols + f.cols - j) % f.cols;
+        gather_column(shape, f, src, off, x, s, &mut col);
+    }
+    for g in g_lo..=g_hi {
+        if g > g_lo {
+            gather_column(shape, f, src, off, inside(g), g % f.cols, &mut col);
+        }
+        let r = g % f.cols;
+        for p in 0..f.pairs {
+            // Depth index of each ray of the pair, if inside the map.
+            let target = |half: usize| {
+                let ray = 2 * p + half;
+                if ray >= f.rays {
+                    return None;
+                }
+                let e = row_of(shape, t, ray / sw)?;
+                let a = (sw * g + ray % sw).checked_sub(pw)?;
+                (a < columns).then_some(e * columns + a)
+            };
+            let targets = [target(0), target(1)];
+            if targets == [None, None] {
+                continue;
+            }
+            let mut max = [i8::MIN; 2];
+            for ky in 0..kh {
+                let w = &wbuf[((r * f.pairs + p) * kh + ky) * 2 * n..][..2 * n];
+                let mut y = 0;
+                while y < ih {
+                    let two = y + 1 < ih;
+                    let acc = crate::dsp::dot2x2(
+                        &col[y * n..ih * n],
+                        if two { n } else { 0 },
+                        w,
+                        n,
+                        [bias; 4],
+                    );
+                    let q = |a: i32| finish(rq.apply(a), params.relu, None);
+                    let [la, lb] = &mut logits;
+                    let i = y * kh + ky;
+                    let (qa, qb) = (q(acc[0]), q(acc[2]));
+                    if let (Some(da), Some(db)) = (la.get_mut(i), lb.get_mut(i)) {
+                        (*da, *db) = (qa, qb);
+                    }
+                    max = [max[0].max(qa), max[1].max(qb)];
+                    if two {
+                        let (qa, qb) = (q(acc[1]), q(acc[3]));
+                        if let (Some(da), Some(db)) = (la.get_mut(i + kh), lb.get_mut(i + kh)) {
+                            (*da, *db) = (qa, qb);
+                        }
+                        max = [max[0].max(qa), max[1].max(qb)];
+                    }
+                    y += 2;
+                }
+            }
+            for (half, at) in targets.iter().enumerate() {
+                if let Some(at) = *at {
+                    depth[at] = ray_depth_max(&logits[half][..bins], max[half], soft);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::conv_transpose3d_s8::conv_transpose3d_s8_plain;
+    use super::super::soft_argmax_s8::soft_argmax_s8_plain;
+    use super::super::testutil::{exp_table, params, soft_params, Rng};
+    use super::super::Skip;
+    use super::*;
+    use crate::config;
+    use std::vec;
+    use std::vec::Vec;
+
+    /// The ring of step `t`: planes `t − P + 1 ..= t` of `input` (zeros outside `0..D`, which
+    /// the kernels must not read anyway: filled with a pattern instead).
+    fn ring_of(shape: &ConvShape, input: &[i8], t: usize) -> Vec<i8> {
+        let [d, h, w] = shape.in_size;
+        let p = head_step_planes(shape);
+        let (hw, ic) = (h * w, shape.in_channels);
+        let mut ring = vec![77i8; ic * p * hw];
+        for z in (t + 1).saturating_sub(p)..=t {
+            for c in 0..ic {
+                let dst = &mut ring[((z % p) * ic + c) * hw..][..hw];
+                if z < d {
+                    dst.copy_from_slice(&input[(c * d + z) * hw..][..hw]);
+                }
+            }
+        }
+        ring
+    }
+
+    fn random_shape(rng: &mut Rng) -> ConvShape {
+        let stride = [1 + rng.below(3), 1 + rng.below(3), 1 + rng.below(4)];
+        let mut kernel = [0; 3];
+        let mut padding = [0; 3];
+        let mut output_padding = [0; 3];
+        for a in 0..3 {
+            kernel[a] = stride[a] + rng.below(2 * stride[a] + 1);
+            padding[a] = rng.below(kernel[a]);
+            if rng.below(3) == 0 {
+                output_padding[a] = rng.below(stride[a]);
+            }
+        }
+        if rng.below(3) > 0 {
+            // Mostly range axes the optimised kernel takes.
+            kernel[1] = stride[1];
+            padding[1] = 0;
+            output_padding[1] = 0;
+        }
+        loop {
+            let in_size = [1 + rng.below(5), 1 + rng.below(9), 1 + rng.below(7)];
+            let out = |a: usize| {
+                ((in_size[a] - 1) * stride[a] + kernel[a] + output_padding[a])
+                    .checked_sub(2 * padding[a])
+                    .filter(|&o| o > 0)
+            };
+            if let (Some(e), Some(r), Some(c)) = (out(0), out(1), out(2)) {
+                if r <= MAX_BINS {
+                    return ConvShape {
+                        in_channels: 1 + rng.below(11),
+                        out_channels: 1,
+                        kernel,
+                        stride,
+                        padding,
+                        output_padding,
+                        in_size,
+                        out_size: [e, r, c],
+                    };
+                }
+            }
+        }
+    }
+
+    fn epssn_head() -> ConvShape {
+        ConvShape {
+            in_channels: 8,
+            out_channels: 1,
+            kernel: [4, 1, 8],
+            stride: [2, 1, 4],
+            padding: [1, 0, 2],
+            output_padding: [0; 3],
+            in_size: [16, 64, 16],
+            out_size: [32, 64, 64],
+        }
+    }
+
+    #[test]
+    fn head_equals_conv_transpose_then_soft_argmax() {
+        let mut rng = Rng(4242);
+        let mut shapes = vec![epssn_head(), ConvShape::from(&config::LAYER_HEAD)];
+        // The old non-overlapping head.
+        shapes.push(ConvShape {
+            kernel: [2, 1, 4],
+            padding: [0; 3],
+            ..epssn_head()
+        });
+        // Too large for the column buffer: the plain path.
+        shapes.push(ConvShape {
+            in_channels: 30,
+            kernel: [3, 1, 3],
+            stride: [2, 1, 2],
+            padding: [1, 0, 1],
+            in_size: [2, 40, 3],
+            out_size: [3, 40, 5],
+            ..epssn_head()
+        });
+        for _ in 0..150 {
+            shapes.push(random_shape(&mut rng));
+        }
+        let mut fast_cases = 0;
+        for (case, shape) in shapes.iter().enumerate() {
+            let (w, mut b, r) = params(&mut rng, shape);
+            if case % 5 == 4 {
+                // Beyond the fast requantisation's range: the exact path.
+                b[0] = 1 << 30;
+            }
+            let input = rng.i8s(shape.in_channels * shape.in_size.iter().product::<usize>());
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &r,
+                input_offset: if case % 4 == 2 { 128 } else { 0 },
+                relu: case % 3 == 1,
+            };
+            let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
+            let soft = soft_params(&exp, rng.below(6) as u16);
+            let [rows, bins, columns] = shape.out_size;
+            let mut logits = vec![0i8; rows * bins * columns];
+            conv_transpose3d_s8_plain(shape, &input, &cp, Skip::None, &mut logits).unwrap();
+            let ss = SoftArgmaxShape {
+                rows,
+                bins,
+                columns,
+            };
+            let mut want = vec![U16F16::ZERO; rows * columns];
+            soft_argmax_s8_plain(&ss, &logits, &soft, &mut want).unwrap();
+            let run = |f: &dyn Fn(&mut [U16F16])| {
+                let mut d = vec![U16F16::ONE; rows * columns];
+                f(&mut d);
+                d
+            };
+            let whole = run(&|d| head_s8(shape, &input, &cp, &soft, d).unwrap());
+            assert_eq!(whole, want, "case {case} {shape:?} whole");
+            let plain = run(&|d| head_s8_plain(shape, &input, &cp, &soft, d).unwrap());
+            assert_eq!(plain, want, "case {case} {shape:?} whole plain");
+            let steps = |plain: bool| {
+                run(&|d| {
+                    for t in 0..head_steps(shape) {
+                        let ring = ring_of(shape, &input, t);
+                        if plain {
+                            head_step_s8_plain(shape, &ring, t, &cp, &soft, d).unwrap();
+                        } else {
+                            head_step_s8(shape, &ring, t, &cp, &soft, d).unwrap();
+                        }
+                    }
+                })
+            };
+            assert_eq!(steps(false), want, "case {case} {shape:?} steps");
+            assert_eq!(steps(true), want, "case {case} {shape:?} steps plain");
+            fast_cases += usize::from(fast_sizes(shape).is_some());
+        }
+        assert!(fast_cases > 60, "{fast_cases}");
+    }
+
+    #[test]
+    fn extreme_inputs_are_exact() {
+        // All-127 and all-−128 inputs with ±127 weights: the largest accumulators.
+        let shape = epssn_head();
+        let taps = shape.in_channels * shape.kernel.iter().product::<usize>();
+        let exp = exp_table(0.05);
+        let soft = soft_params(&exp, 4);
+        for (v, wv) in [(127i8, 127i8), (-128, 127), (127, -128), (-128, -128)] {
+            let w = vec![wv; taps];
+            let cp = ConvParams {
+                weights: &w,
+                bias: &[-12345],
+                requant: &[crate::requant::Requant {
+                    multiplier: 1 << 30,
+                    shift: -12,
+                }],
+                input_offset: 0,
+                relu: false,
+            };
+            let input = vec![v; shape.in_channels * shape.in_size.iter().product::<usize>()];
+            let [rows, bins, columns] = shape.out_size;
+            let mut logits = vec![0i8; rows * bins * columns];
+            conv_transpose3d_s8_plain(&shape, &input, &cp, Skip::None, &mut logits).unwrap();
+            let ss = SoftArgmaxShape {
+                rows,
+                bins,
+                columns,
+            };
+            let mut want = vec![U16F16::ZERO; rows * columns];
+            soft_argmax_s8_plain(&ss, &logits, &soft, &mut want).unwrap();
+            let mut got = vec![U16F16::ZERO; rows * columns];
+            head_s8(&shape, &input, &cp, &soft, &mut got).unwrap();
+            assert_eq!(got, want);
+        }
+    }
+
+    #[test]
+    fn no_panics_on_random_arguments() {
+        let mut rng = Rng(99);
+        let exp = exp_table(0.1);
+        for _ in 0..3000 {
+            let dim = |rng: &mut Rng| rng.below(5);
+            let shape = ConvShape {
+                in_channels: dim(&mut rng),
+                out_channels: rng.below(3),
+                kernel: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                stride: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                padding: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                output_padding: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                in_size: [dim(&mut rng), dim(&mut rng), dim(&mut rng)],
+                out_size: [
+                    rng.below(12),
+                    if rng.below(50) == 0 {
+                        usize::MAX
+                    } else {
+                        rng.below(12)
+                    },
+                    rng.below(12),
+                ],
+            };
+            let nw = rng.below(200);
+            let w = rng.i8s(nw);
+            let b = [rng.range(-(1 << 31), (1 << 31) - 1) as i32];
+            let r = [crate::requant::Requant {
+                multiplier: rng.next() as i32,
+                shift: rng.range(-40, 40) as i32,
+            }];
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b[..rng.below(2)],
+                requant: &r[..rng.below(2)],
+                input_offset: rng.range(-300, 300) as i32,
+                relu: rng.below(2) == 0,
+            };
+            let soft = SoftArgmaxParams {
+                exp: &exp,
+                r_min16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+                step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
+                end_offset: rng.below(300) as u16,
+            };
+            let ni = rng.below(300);
+            let input = rng.i8s(ni);
+            let mut depth = vec![U16F16::ZERO; rng.below(40)];
+            let t = if rng.below(10) == 0 {
+                usize::MAX
+            } else {
+                rng.below(8)
+            };
+            let _ = head_s8(&shape, &input, &cp, &soft, &mut depth);
+            let _ = head_s8_plain(&shape, &input, &cp, &soft, &mut depth);
+            let _ = head_step_s8(&shape, &input, t, &cp, &soft, &mut depth);
+            let _ = head_step_s8_plain(&shape, &input, t, &cp, &soft, &mut depth);
+            let _ = (head_steps(&shape), head_step_planes(&shape));
+        }
+        let huge = ConvShape {
+            padding: [usize::MAX; 3],
+            out_size: [usize::MAX; 3],
+            stride: [1; 3],
+            ..epssn_head()
+        };
+        assert_eq!(head_steps(&huge), usize::MAX);
+    }
+
+    #[test]
+    fn errors_and_odd_steps() {
+        let shape = epssn_head();
+        let exp = exp_table(0.05);
+        let soft = soft_params(&exp, 0);
+        let w = vec![1i8; 8 * 32];
+        let rq = [crate::requant::Requant {
+            multiplier: 1 << 30,
+            shift: -4,
+        }];
+        let cp = ConvParams {
+            weights: &w,
+            bias: &[0],
+            requant: &rq,
+            input_offset: 0,
+            relu: false,
+        };
+        let ring = vec![0i8; 8 * 2 * 64 * 16];
+        let mut depth = vec![U16F16::ZERO; 32 * 64];
+        assert!(matches!(
+            head_step_s8(&shape, &ring[1..], 0, &cp, &soft, &mut depth),
+            Err(KernelError::Length {
+                operand: Operand::Input,
+                ..
+            })
+        ));
+        assert!(matches!(
+            head_step_s8(&shape, &ring, 0, &cp, &soft, &mut depth[1..]),
+            Err(KernelError::Length {
+                operand: Operand::Depth,
+                ..
+            })
+        ));
+        let two = ConvShape {
+            out_channels: 2,
+            ..shape
+        };
+        assert_eq!(
+            head_step_s8(&two, &ring, 0, &cp, &soft, &mut depth),
+            Err(KernelError::NotStreamableHead)
+        );
+        // Steps far past the map write nothing and do not panic.
+        for t in [40, usize::MAX / 2, usize::MAX] {
+            head_step_s8(&shape, &ring, t, &cp, &soft, &mut depth).unwrap();
+            head_step_s8_plain(&shape, &ring, t, &cp, &soft, &mut depth).unwrap();
+        }
+        assert!(depth.iter().all(|d| *d == U16F16::ZERO));
+        assert_eq!(head_steps(&shape), 17);
+        assert_eq!(head_step_planes(&shape), 2);
+    }
+}
