@@ -17,7 +17,7 @@
 //! (`[y][column slot][plane][channel]`, one new column per position: column `x` lives in slot
 //! `x mod Q` and the weights are prepared for each rotation), computes every ray phase
 //! `(ψ, φ)` of the position two rays × two range bins per [`crate::dsp::dot2x2`], requantises
-//! with [`FastRequant`] when the accumulator bound allows, tracks each ray's maximum while
+//! with one `SMMULR` (`RowRequant`) when the accumulator bound allows, tracks each ray's maximum while
 //! producing its logits, and reduces the ray at once (single-pass soft-argmax).
 //!
 //! The range axis must have kernel == stride, no padding and no output padding for the
@@ -27,13 +27,16 @@
 //! MACs per logit: `C · ceil(kd / sd) · ceil(kw / sw)` (zero taps included), plus the
 //! soft-argmax.
 
+use super::line::RowRequant;
 use super::soft_argmax_s8::{
     check_params, ray_depth_max, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
 };
 use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
-use crate::requant::{Apply, FastRequant};
+use crate::requant::Apply;
 use fixed::types::U16F16;
 
+/// Most input range rows of the optimised kernel (its accumulator rows).
+pub const MAX_FAST_ROWS: usize = 128;
 /// Most words of the gathered inputs of one column position (`H` range rows of
 /// `Q · P · up4(C) / 2` words).
 pub const HEAD_COL_WORDS: usize = 1024;
@@ -330,7 +333,8 @@ fn fast_sizes(shape: &ConvShape) -> Option<Fast> {
         .checked_mul(kh)?
         .checked_mul(2 * n)?;
     let col_words = ih.checked_mul(n)?;
-    (w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS).then_some(Fast {
+    let fits = w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS && ih <= MAX_FAST_ROWS;
+    fits.then_some(Fast {
         planes,
         cols,
         vp,
@@ -371,7 +375,7 @@ fn run<'a>(
                 &f,
                 &p,
                 params,
-                FastRequant::new(rq),
+                RowRequant::new(rq),
                 &wbuf,
                 soft,
                 depth,
@@ -454,10 +458,8 @@ fn gather_column(
             let x = x.unwrap_or(0);
             match (plane(2 * m), plane(2 * m + 1)) {
                 (Some(pa), Some(pb)) => {
-                    let it = rows.chunks_exact_mut(n);
-                    for ((d, ra), rb) in it.zip(pa.chunks_exact(iw)).zip(pb.chunks_exact(iw)) {
-                        d[k] = crate::dsp::pack(ra[x] as i16 + off, rb[x] as i16 + off);
-                    }
+                    let (a, b) = (&pa[x..], &pb[x..]);
+                    crate::dsp::pack_strided(&mut rows[k..], n, (a, b, iw), ih, off, off);
                 }
                 (Some(pa), None) => {
                     for (d, ra) in rows.chunks_exact_mut(n).zip(pa.chunks_exact(iw)) {
@@ -474,9 +476,47 @@ fn gather_column(
     }
 }
 
+/// Logits `out[y·kh + ky] = clamp(ReLU?(rq(acc[y])))` of one ray and range tap, and the
+/// running maximum `max` updated with them.
+trait LogitRequant: Apply {
+    #[inline(always)]
+    fn logits(self, acc: &[i32], relu: bool, out: &mut [i8], tap: (usize, usize), max: i8) -> i8 {
+        requant_logits(acc, self, relu, out, tap, max)
+    }
+}
+
+impl LogitRequant for crate::requant::Requant {}
+
+impl LogitRequant for RowRequant {
+    #[inline(always)]
+    fn logits(self, acc: &[i32], relu: bool, out: &mut [i8], tap: (usize, usize), max: i8) -> i8 {
+        match tap {
+            (0, 1) => self.row_max(acc, out, relu, max),
+            _ => requant_logits(acc, self, relu, out, tap, max),
+        }
+    }
+}
+
+#[inline(always)]
+fn requant_logits<R: Apply>(
+    acc: &[i32],
+    rq: R,
+    relu: bool,
+    out: &mut [i8],
+    (ky, kh): (usize, usize),
+    mut max: i8,
+) -> i8 {
+    let q = |a: i32| finish(rq.apply(a), relu, None);
+    for (d, &a) in out.iter_mut().skip(ky).step_by(kh.max(1)).zip(acc) {
+        *d = q(a);
+        max = max.max(*d);
+    }
+    max
+}
+
 /// One step, optimised (validated shape that [`fast_sizes`] accepts, weights prepared).
 #[allow(clippy::too_many_arguments)]
-fn step_fast<R: Apply>(
+fn step_fast<R: LogitRequant>(
     shape: &ConvShape,
     f: &Fast,
     src: &Planes<'_>,
@@ -503,6 +543,7 @@ fn step_fast<R: Apply>(
     let g_hi = (columns - 1 + pw) / sw;
     let mut col = [0u32; HEAD_COL_WORDS];
     let mut logits = [[0i8; MAX_BINS]; 2];
+    let mut acc = [[0i32; MAX_FAST_ROWS]; 2];
     let inside = |x: usize| (x < iw).then_some(x);
     for j in 0..f.cols {
         // Columns g_lo − j, in slot (g_lo − j) mod Q.
@@ -530,35 +571,29 @@ fn step_fast<R: Apply>(
             if targets == [None, None] {
                 continue;
             }
+            // Both rays' accumulators over the range rows at once (one validated call per
+            // range tap), then each ray's logits requantised in a tight loop.
             let mut max = [i8::MIN; 2];
             for ky in 0..kh {
                 let w = &wbuf[((r * f.pairs + p) * kh + ky) * 2 * n..][..2 * n];
-                let mut y = 0;
-                while y < ih {
-                    let two = y + 1 < ih;
-                    let acc = crate::dsp::dot2x2(
-                        &col[y * n..ih * n],
-                        if two { n } else { 0 },
-                        w,
-                        n,
-                        [bias; 4],
+                let [aa, ab] = &mut acc;
+                crate::dsp::dot2x2_row(
+                    &col[..ih * n],
+                    n,
+                    ih,
+                    w,
+                    n,
+                    [bias; 2],
+                    (&mut aa[..ih], &mut ab[..ih], 1),
+                );
+                for half in 0..2 {
+                    max[half] = rq.logits(
+                        &acc[half][..ih],
+                        params.relu,
+                        &mut logits[half][..bins],
+                        (ky, kh),
+                        max[half],
                     );
-                    let q = |a: i32| finish(rq.apply(a), params.relu, None);
-                    let [la, lb] = &mut logits;
-                    let i = y * kh + ky;
-                    let (qa, qb) = (q(acc[0]), q(acc[2]));
-                    if let (Some(da), Some(db)) = (la.get_mut(i), lb.get_mut(i)) {
-                        (*da, *db) = (qa, qb);
-                    }
-                    max = [max[0].max(qa), max[1].max(qb)];
-                    if two {
-                        let (qa, qb) = (q(acc[1]), q(acc[3]));
-                        if let (Some(da), Some(db)) = (la.get_mut(i + kh), lb.get_mut(i + kh)) {
-                            (*da, *db) = (qa, qb);
-                        }
-                        max = [max[0].max(qa), max[1].max(qb)];
-                    }
-                    y += 2;
                 }
             }
             for (half, at) in targets.iter().enumerate() {

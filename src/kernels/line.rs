@@ -82,11 +82,29 @@ impl RowRequant {
     }
 }
 
+impl RowRequant {
+    /// `out[i]` = `acc[i]` requantised, ReLU'd if `relu` and clamped to int8 (as
+    /// [`super::finish`] without a skip), and the larger of `max` and those values
+    /// ([`crate::dsp::requant_max_row`]).
+    #[inline(always)]
+    pub(crate) fn row_max(self, acc: &[i32], out: &mut [i8], relu: bool, max: i8) -> i8 {
+        let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
+        crate::dsp::requant_max_row(acc, out, f, relu, max)
+    }
+}
+
 impl Apply for RowRequant {
     #[inline(always)]
     fn apply(self, acc: i32) -> i32 {
         let x = crate::dsp::smmulr(acc.wrapping_shl(self.left1), self.multiplier);
         x.wrapping_add(self.half).wrapping_add((x >> 31) & self.neg) >> self.right
+    }
+
+    #[inline(always)]
+    fn row_s8(self, acc: &[i32], out: &mut [i8], relu: bool, skip: Option<&[i32; 256]>) -> bool {
+        let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
+        crate::dsp::requant_row_s8(acc, out, f, relu, skip);
+        true
     }
 }
 
@@ -155,6 +173,18 @@ fn requant_row<R: Apply>(
     let Some(dst) = out.get_mut(start..end) else {
         return;
     };
+    if step == 1 {
+        let lut = match skip {
+            SkipLut::None => Some(None),
+            SkipLut::InPlace(lut) => Some(Some(lut)),
+            SkipLut::Separate(..) => None,
+        };
+        if let Some(lut) = lut {
+            if rq.row_s8(acc, dst, relu, lut) {
+                return;
+            }
+        }
+    }
     match (skip, relu) {
         (SkipLut::None, true) => store_row(acc, dst, step, |a, _, _| rq.apply(a).max(0)),
         (SkipLut::None, false) => store_row(acc, dst, step, |a, _, _| rq.apply(a)),
