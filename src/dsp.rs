@@ -1008,7 +1008,11 @@ mod tests {
             let mut want_max = -100;
             for i in 0..37 {
                 let sk = skip.map(|t| t[old[i] as u8 as usize]);
-                assert_eq!(out[i] as i32, requantised(acc[i], f, relu, sk), "round {round} {i}");
+                assert_eq!(
+                    out[i] as i32,
+                    requantised(acc[i], f, relu, sk),
+                    "round {round} {i}"
+                );
                 let plain = requantised(acc[i], f, relu, None);
                 assert_eq!(with_max[i] as i32, plain, "round {round} {i}");
                 want_max = want_max.max(plain);

@@ -30,9 +30,10 @@ use crate::kernels::{
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
-    head_s8::head_step_s8, head_s8::head_steps, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
-    soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
+    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
+    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
+    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
+    ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -598,7 +599,7 @@ const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
 /// Whether the head is fused with the soft-argmax ([`head_soft_argmax_s8`]: kernel == stride,
 /// no padding, one output channel, so each logit depends on one input voxel). Otherwise the
 /// streamed path computes it a step at a time (`stream_u0_head`) with the overlapping head
-/// fused with the soft-argmax ([`head_step_s8`]).
+/// fused with the soft-argmax ([`HeadPlan`], [`crate::kernels::head_s8::head_step_s8`] step by step).
 const HEAD_FUSED: bool = {
     let h = &LAYERS[HEAD];
     let mut fused = h.out_channels == 1;
@@ -1147,6 +1148,20 @@ impl<'a> Model<'a> {
         let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
         let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
+        // The general head's weights laid out once per depth map, not once per step.
+        let mut head_weights = HeadWeights::new();
+        let head_checked = self.checked(HEAD);
+        let plan = if HEAD_FUSED {
+            None
+        } else {
+            let shape = ConvShape::from(head);
+            Some(HeadPlan::new(
+                &shape,
+                &head_checked,
+                &soft,
+                &mut head_weights,
+            )?)
+        };
         // One step per u0 *output* plane (the head's input planes).
         let out_planes = l.out_size[0];
         for t in 0..out_planes {
@@ -1189,28 +1204,19 @@ impl<'a> Model<'a> {
                     &soft,
                     depth_t,
                 )?;
-            } else {
-                self.head_step(&buf[out.clone()], t, depth)?;
+            } else if let Some(plan) = &plan {
+                // The `stride[0]` depth rows whose last input plane is `t`, from the ring
+                // of the last `P` u0 planes, fused with the soft-argmax.
+                plan.step(&buf[out.clone()], t, depth)?;
             }
         }
-        if !HEAD_FUSED {
+        if let Some(plan) = &plan {
             // Rows whose last input plane lies past u0's last (the kernel reads no plane
             // outside the map, so the ring's stale slots are not read).
-            for t in out_planes..head_steps(&ConvShape::from(&LAYERS[HEAD])) {
-                self.head_step(&buf[out.clone()], t, depth)?;
+            for t in out_planes..head_steps(&ConvShape::from(head)) {
+                plan.step(&buf[out.clone()], t, depth)?;
             }
         }
-        Ok(())
-    }
-
-    /// Step `t` of the general (non-fused) head: [`head_step_s8`] turns the ring of the last
-    /// `P` u0 planes into the `stride[0]` depth rows whose last input plane is `t` (those
-    /// inside the map), fused with the soft-argmax.
-    fn head_step(&self, ring: &[i8], t: usize, depth: &mut [U16F16]) -> Result<(), Error> {
-        let head = &LAYERS[HEAD];
-        let params = layer_params(head, &self.layers[HEAD], HEAD);
-        let shape = ConvShape::from(head);
-        head_step_s8(&shape, ring, t, &params, &self.soft(), depth)?;
         Ok(())
     }
 }

@@ -31,7 +31,10 @@ use super::line::RowRequant;
 use super::soft_argmax_s8::{
     check_params, ray_depth_max, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
 };
-use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
+use super::{
+    check_conv_transpose, check_conv_transpose_shape, finish, mul3, CheckedParams, ConvParams,
+    ConvShape, KernelError, Operand,
+};
 use crate::requant::Apply;
 use fixed::types::U16F16;
 
@@ -191,6 +194,87 @@ pub fn head_step_s8(
     let planes = ring_planes(shape, ring, t);
     run(shape, bound, params, soft, depth, |_| planes);
     Ok(())
+}
+
+/// The head prepared once for the steps of a depth map: shape, parameters and soft-argmax
+/// validated (the weight bound taken from [`CheckedParams`], verified once per model) and the
+/// optimised kernel's weights laid out, so each [`HeadPlan::step`] only checks the ring and
+/// depth lengths. Same bits as [`head_step_s8`] step by step. The laid-out weights live in
+/// the caller's [`HeadWeights`] (2 KiB: a plan is cheap to move).
+pub struct HeadPlan<'a> {
+    shape: ConvShape,
+    params: ConvParams<'a>,
+    soft: SoftArgmaxParams<'a>,
+    fast: Option<(Fast, bool)>,
+    wbuf: &'a [u32; HEAD_W_WORDS],
+}
+
+/// The optimised head kernel's weights, as [`HeadPlan::new`] lays them out.
+pub struct HeadWeights([u32; HEAD_W_WORDS]);
+
+impl HeadWeights {
+    /// Zeroed.
+    pub const fn new() -> Self {
+        Self([0; HEAD_W_WORDS])
+    }
+}
+
+impl Default for HeadWeights {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<'a> HeadPlan<'a> {
+    /// Validates the head `shape` (the whole head: `depth` is the whole `[E][A]` map) with
+    /// `checked` (verified for its kernel and channels, transposed) and `soft`, and prepares
+    /// the optimised kernel's weights when the shape suits it.
+    pub fn new(
+        shape: &ConvShape,
+        checked: &CheckedParams<'a>,
+        soft: &SoftArgmaxParams<'a>,
+        weights: &'a mut HeadWeights,
+    ) -> Result<Self, KernelError> {
+        checked.check_shape(shape, true)?;
+        if shape.out_channels != 1 {
+            return Err(KernelError::NotStreamableHead);
+        }
+        check_conv_transpose_shape(shape, whole_len(shape)?, mul3(shape.out_size)?)?;
+        check_params(soft, shape.out_size[1])?;
+        let params = *checked.params();
+        let fast = fast_sizes(shape).map(|f| {
+            prepare_weights(shape, &f, &params, &mut weights.0);
+            (f, params.requant[0].fits_fast(checked.bound()))
+        });
+        Ok(Self {
+            shape: *shape,
+            params,
+            soft: *soft,
+            fast,
+            wbuf: &weights.0,
+        })
+    }
+
+    /// Step `t` (as [`head_step_s8`]) from the ring `[P][C][H][W]` of its input planes.
+    pub fn step(&self, ring: &[i8], t: usize, depth: &mut [U16F16]) -> Result<(), KernelError> {
+        let shape = &self.shape;
+        super::expect(Operand::Input, ring_len(shape)?, ring.len())?;
+        let [rows, _, columns] = shape.out_size;
+        super::expect(Operand::Depth, rows * columns, depth.len())?;
+        let planes = ring_planes(shape, ring, t);
+        let (p, soft) = (&self.params, &self.soft);
+        match &self.fast {
+            Some((f, true)) => {
+                let rq = RowRequant::new(p.requant[0]);
+                step_fast(shape, f, &planes, p, rq, self.wbuf, soft, depth);
+            }
+            Some((f, false)) => {
+                step_fast(shape, f, &planes, p, p.requant[0], self.wbuf, soft, depth);
+            }
+            None => step_plain(shape, &planes, p, soft, depth),
+        }
+        Ok(())
+    }
 }
 
 /// The whole head on a whole input `[C][D][H][W]` → depth `[E][A]`, plain reference (every
@@ -868,6 +952,54 @@ mod tests {
             ..epssn_head()
         };
         assert_eq!(head_steps(&huge), usize::MAX);
+    }
+
+    #[test]
+    fn plan_steps_equal_head_step_s8() {
+        let mut rng = Rng(0x5eed_4ead);
+        let exp = exp_table(0.05);
+        let soft = soft_params(&exp, 4);
+        for k in [[4, 1, 8], [2, 1, 4], [3, 1, 5]] {
+            let padding = [(k[0] - 2) / 2, 0, (k[2] - 4) / 2];
+            let (rows, columns) = (
+                15 * 2 + k[0] - 2 * padding[0],
+                15 * 4 + k[2] - 2 * padding[2],
+            );
+            let shape = ConvShape {
+                in_channels: 8,
+                out_channels: 1,
+                in_size: [16, 64, 16],
+                out_size: [rows, 64, columns],
+                kernel: k,
+                stride: [2, 1, 4],
+                padding,
+                output_padding: [0, 0, 0],
+            };
+            let (w, b, rq) = params(&mut rng, &shape);
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &rq,
+                input_offset: 0,
+                relu: false,
+            };
+            let checked = CheckedParams::new(&shape, cp, true).unwrap();
+            let mut weights = HeadWeights::new();
+            let plan = HeadPlan::new(&shape, &checked, &soft, &mut weights).unwrap();
+            let input = rng.i8s(8 * 16 * 64 * 16);
+            let mut a = vec![U16F16::ZERO; rows * columns];
+            let mut b2 = a.clone();
+            for t in 0..head_steps(&shape) {
+                let ring = ring_of(&shape, &input, t);
+                plan.step(&ring, t, &mut a).unwrap();
+                head_step_s8(&shape, &ring, t, &cp, &soft, &mut b2).unwrap();
+            }
+            assert_eq!(a, b2, "kernel {k:?}");
+            assert!(matches!(
+                plan.step(&input[..10], 0, &mut a),
+                Err(KernelError::Length { .. })
+            ));
+        }
     }
 
     #[test]
