@@ -370,22 +370,25 @@ fn fill(
     let words = &mut line[..vw * cols];
     let len = hi.saturating_sub(lo).min(MAX_ROW);
     // Padding rows read zeros and add nothing (padding contributes 0, not the offset).
-    let mut row = || match src() {
-        Some(base) => (&input[base + in0..base + in0 + len], off),
-        None => (&ZEROS[..len], 0),
-    };
+    #[inline(always)]
+    fn row(input: &[i8], base: Option<usize>, in0: usize, len: usize, off: i16) -> (&[i8], i16) {
+        match base {
+            Some(base) => (&input[base + in0..base + in0 + len], off),
+            None => (&ZEROS[..len], 0),
+        }
+    }
+    // Columns are `vw` consecutive words, so the padding columns left of `lo` and from
+    // `lo + len` on are two contiguous blocks, zeroed once instead of word by word.
+    let (head, tail) = (lo.min(cols), (lo + len).min(cols));
+    words[..head * vw].fill(0);
+    words[tail * vw..].fill(0);
+    if len == 0 {
+        return;
+    }
     for k in 0..vw {
-        let (ra, oa) = row();
-        let (rb, ob) = row();
-        for c in 0..lo.min(cols) {
-            words[c * vw + k] = 0;
-        }
-        if len > 0 {
-            crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
-        }
-        for c in (lo + len).min(cols)..cols {
-            words[c * vw + k] = 0;
-        }
+        let (ra, oa) = row(input, src(), in0, len, off);
+        let (rb, ob) = row(input, src(), in0, len, off);
+        crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
     }
 }
 
