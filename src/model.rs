@@ -1131,23 +1131,9 @@ impl<'a> Model<'a> {
         scratch: &mut LineScratch,
         depth: &mut [U16F16],
     ) -> Result<(), Error> {
-        let l = &LAYERS[U0];
-        let [in_planes, in_rows, in_width] = l.in_size;
-        let in_plane = in_rows * in_width;
-        let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
         let out = LIVE_END + U0_GATHER_LEN..LIVE_END + U0_GATHER_LEN + U0_OUT_LEN;
-        let checked = self.checked(U0);
-        let skip = Skip::InPlace {
-            requant: self.layers[U0].skip,
-        };
         let head = &LAYERS[HEAD];
-        let head_params = layer_params(head, &self.layers[HEAD], HEAD);
-        let mut head_shape = ConvShape::from(head);
-        head_shape.in_size[0] = 1;
-        head_shape.out_size[0] = head.kernel[0] as usize;
-        let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
-        let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
         // The general head's weights laid out once per depth map, not once per step.
         let mut head_weights = HeadWeights::new();
         let head_checked = self.checked(HEAD);
@@ -1162,9 +1148,49 @@ impl<'a> Model<'a> {
                 &mut head_weights,
             )?)
         };
-        // One step per u0 *output* plane (the head's input planes).
-        let out_planes = l.out_size[0];
-        for t in 0..out_planes {
+        // One step per u0 *output* plane (the head's input planes); u0's weights are laid
+        // out for its two plane phases once, not once per plane (the model's are immutable).
+        scratch.keep_weights();
+        let planes = self.u0_planes(cost, buf, scratch, depth, &plan, out.clone());
+        scratch.forget_weights();
+        planes?;
+        if let Some(plan) = &plan {
+            // Rows whose last input plane lies past u0's last (the kernel reads no plane
+            // outside the map, so the ring's stale slots are not read).
+            for t in LAYERS[U0].out_size[0]..head_steps(&ConvShape::from(head)) {
+                plan.step(&buf[out.clone()], t, depth)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The u0 planes of [`Self::stream_u0_head`], each followed by its head step.
+    fn u0_planes(
+        &self,
+        cost: &CostVolume<'_>,
+        buf: &mut [i8],
+        scratch: &mut LineScratch,
+        depth: &mut [U16F16],
+        plan: &Option<HeadPlan<'_>>,
+        out: Range<usize>,
+    ) -> Result<(), Error> {
+        let l = &LAYERS[U0];
+        let [in_planes, in_rows, in_width] = l.in_size;
+        let in_plane = in_rows * in_width;
+        let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
+        let checked = self.checked(U0);
+        let skip = Skip::InPlace {
+            requant: self.layers[U0].skip,
+        };
+        let head = &LAYERS[HEAD];
+        let head_params = layer_params(head, &self.layers[HEAD], HEAD);
+        let mut head_shape = ConvShape::from(head);
+        head_shape.in_size[0] = 1;
+        head_shape.out_size[0] = head.kernel[0] as usize;
+        let depth_rows = head_shape.out_size[0] * head.out_size[2];
+        let soft = self.soft();
+        let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
+        for t in 0..l.out_size[0] {
             let slot = if HEAD_FUSED { 0 } else { t % HEAD_IN_PLANES };
             let plane = out.start + slot * U0_PLANE_LEN..out.start + (slot + 1) * U0_PLANE_LEN;
             for (c, o) in buf[plane.clone()].chunks_exact_mut(cost_plane).enumerate() {
@@ -1207,13 +1233,6 @@ impl<'a> Model<'a> {
             } else if let Some(plan) = &plan {
                 // The `stride[0]` depth rows whose last input plane is `t`, from the ring
                 // of the last `P` u0 planes, fused with the soft-argmax.
-                plan.step(&buf[out.clone()], t, depth)?;
-            }
-        }
-        if let Some(plan) = &plan {
-            // Rows whose last input plane lies past u0's last (the kernel reads no plane
-            // outside the map, so the ring's stale slots are not read).
-            for t in out_planes..head_steps(&ConvShape::from(head)) {
                 plan.step(&buf[out.clone()], t, depth)?;
             }
         }

@@ -251,6 +251,20 @@ pub struct LineScratch {
     wbuf: [u32; WEIGHT_WORDS],
     line: [u32; LINE_WORDS],
     acc: RowAcc,
+    kept: KeptWeights,
+}
+
+/// Weights address and length, kernel, stride, input and output channels.
+type WeightsKey = (usize, usize, [usize; 3], [usize; 3], usize, usize);
+
+/// Which transposed-convolution weights `wbuf` still holds, while the caller allows keeping
+/// them ([`LineScratch::keep_weights`]).
+#[derive(Clone, Copy, Default)]
+struct KeptWeights {
+    on: bool,
+    key: Option<WeightsKey>,
+    /// Bit `fz · MAX_STRIDE + fy`: the phase's weights are laid out.
+    ready: u64,
 }
 
 impl Default for LineScratch {
@@ -266,7 +280,30 @@ impl LineScratch {
             wbuf: [0; WEIGHT_WORDS],
             line: [0; LINE_WORDS],
             acc: [[0; MAX_POSITIONS + 1]; 2],
+            kept: KeptWeights {
+                on: false,
+                key: None,
+                ready: 0,
+            },
         }
+    }
+
+    /// From now on, a transposed convolution whose weights (same slice, kernel, stride and
+    /// channels) were laid out by an earlier call skips laying them out again, as long as
+    /// they fit the weight buffer beside each other phase by phase. For a caller that runs
+    /// one layer many times in pieces (the streamed model's u0, a plane per call): the
+    /// weights must not change until [`LineScratch::forget_weights`].
+    pub fn keep_weights(&mut self) {
+        self.kept = KeptWeights {
+            on: true,
+            key: None,
+            ready: 0,
+        };
+    }
+
+    /// Ends [`LineScratch::keep_weights`]: every call lays its weights out again.
+    pub fn forget_weights(&mut self) {
+        self.kept = KeptWeights::default();
     }
 }
 
@@ -447,7 +484,12 @@ pub(crate) fn conv<R: Apply>(
             0
         }
     };
-    let LineScratch { wbuf, line, acc } = scratch;
+    // The forward engine overwrites the weight buffer.
+    scratch.kept.key = None;
+    scratch.kept.ready = 0;
+    let LineScratch {
+        wbuf, line, acc, ..
+    } = scratch;
     let out_plane = od * oh * ow;
     let rin = RowIn {
         positions: ow,
@@ -594,20 +636,54 @@ pub(crate) fn transposed<R: Apply>(
         (iw as isize - ixlo).clamp(0, cols as isize) as usize,
     );
     let span = (lo, hi.max(lo), 0);
-    let LineScratch { wbuf, line, acc } = scratch;
+    // Words of the weights of phase (fz, fy): every x phase's [O][c'][v] pairs.
+    let phase_words = |fz: usize, fy: usize| {
+        let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
+        (0..sw.min(MAX_STRIDE))
+            .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
+            .sum::<usize>()
+    };
+    // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
+    let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
+    let key = (
+        params.weights.as_ptr() as usize,
+        params.weights.len(),
+        shape.kernel,
+        shape.stride,
+        ic,
+        oc,
+    );
+    let kept = &mut scratch.kept;
+    let keep = kept.on && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
+    if !keep || kept.key != Some(key) {
+        kept.key = keep.then_some(key);
+        kept.ready = 0;
+    }
+    let mut phase_base = 0;
+    let LineScratch {
+        wbuf,
+        line,
+        acc,
+        kept,
+    } = scratch;
     for fz in 0..sd {
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
+            let base = if keep { phase_base } else { 0 };
+            phase_base += phase_words(fz, fy);
             if nz * ny == 0 {
                 continue;
             }
+            let bit = 1u64 << ((fz * MAX_STRIDE + fy) % 64);
+            let laid_out = keep && kept.ready & bit != 0;
+            kept.ready |= if keep { bit } else { 0 };
             let v_len = ic * tz * ty;
             let vp = up4(v_len);
             let vw = vp / 2;
             // Per x phase: (first x, count, taps, weight offset, first line word).
             let mut xs = [(0usize, 0usize, 0usize, 0usize, 0usize); MAX_STRIDE];
-            let mut wofs = 0;
+            let mut wofs = base;
             // Weight index of entry v = (i, a, b) for output channel 0 and column tap 0:
             // ((i·oc·kd + kz)·kh + ky)·kw with kz = fz + a·sd, ky = fy + b·sh (counted up).
             let taps_o = kd * kh * kw;
@@ -632,6 +708,10 @@ pub(crate) fn transposed<R: Apply>(
                 // Weights [O][c'][v] as i16 pairs: column tap c' reads input column
                 // bx − (tx − 1 − c').
                 let n = tx * vw;
+                if laid_out {
+                    wofs += oc.div_ceil(2) * 2 * n;
+                    continue;
+                }
                 let wv = |o: usize, cp: usize, v: usize| {
                     if v >= v_len {
                         return 0;

@@ -418,13 +418,8 @@ fn head_by_columns<R: Apply>(
 /// Soft-argmax of one ray whose maximum logit `m` is known (the contract's sums).
 #[inline(always)]
 pub(super) fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
-    let (mut s, mut t) = (0u32, 0u32);
-    for (i, &q) in logits.iter().enumerate() {
-        // m ≥ q, so m − q is in 0..=255 and the u8 cast is exact.
-        let e = p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
-        s += e;
-        t += e * i as u32;
-    }
+    // m ≥ q, so m − q is in 0..=255 and the table index exact.
+    let (s, t) = crate::dsp::exp_sums(logits, m, p.exp);
     let end = |q: i8| p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
     depth_of(
         s,
