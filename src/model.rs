@@ -24,13 +24,16 @@ use fixed::types::U16F16;
 
 use crate::blob::{Blob, BlobError};
 use crate::config::{self, LayerKind, LayerShape, LAYERS};
+use crate::kernels::LineScratch;
 use crate::kernels::{
-    check_layer_bounds, conv2d_s8::conv2d_s8, conv3d_s8::conv3d_s8,
-    conv_transpose3d_s8::conv_transpose3d_s8, cost_volume_s8::cost_volume_s8,
-    cost_volume_s8::CostShape, cost_volume_s8::SourceView, head_s8::head_step_s8,
-    head_s8::head_steps, soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
-    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, ConvParams, ConvShape,
-    KernelError, Skip,
+    check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
+    conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
+    conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
+    cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
+    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
+    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
+    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
+    ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -239,6 +242,8 @@ struct LayerParams<'a> {
     bias: [i32; MAX_CHANNELS],
     requant: [Requant; MAX_CHANNELS],
     skip: Requant,
+    /// Worst-case accumulator ([`check_layer_bounds`]), verified in [`Model::from_blob`].
+    bound: i64,
 }
 
 /// A verified int8 EPSSN.
@@ -291,6 +296,7 @@ impl<'a> Model<'a> {
             bias: [0; MAX_CHANNELS],
             requant: [Requant::default(); MAX_CHANNELS],
             skip: Requant::default(),
+            bound: 0,
         };
         let mut layers = [empty; config::LAYER_COUNT];
         for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
@@ -332,6 +338,7 @@ impl<'a> Model<'a> {
             if !p.requant[..oc].iter().all(|r| r.fits(bound)) {
                 return Err(Error::AccumulatorBound { index });
             }
+            p.bound = bound;
         }
         let mut c = [0i32; 4];
         blob.read_i32("cost.rq", &mut c)?;
@@ -592,7 +599,7 @@ const fn u0_plane(t: usize) -> (usize, usize, usize, usize) {
 /// Whether the head is fused with the soft-argmax ([`head_soft_argmax_s8`]: kernel == stride,
 /// no padding, one output channel, so each logit depends on one input voxel). Otherwise the
 /// streamed path computes it a step at a time (`stream_u0_head`) with the overlapping head
-/// fused with the soft-argmax ([`head_step_s8`]).
+/// fused with the soft-argmax ([`HeadPlan`], [`crate::kernels::head_s8::head_step_s8`] step by step).
 const HEAD_FUSED: bool = {
     let h = &LAYERS[HEAD];
     let mut fused = h.out_channels == 1;
@@ -608,14 +615,14 @@ const HEAD_FUSED: bool = {
 /// (as [`crate::kernels::head_s8::head_step_planes`]).
 const HEAD_IN_PLANES: usize =
     (LAYERS[HEAD].kernel[0] as usize).div_ceil(LAYERS[HEAD].stride[0] as usize);
-/// The general head's ring of the last [`HEAD_IN_PLANES`] u0 planes `[C][P][H][W]`.
-const HEAD_RING_LEN: usize = if HEAD_FUSED {
-    0
+/// u0's output planes in the streamed path: one plane for the fused head; for the general
+/// head the ring of the last [`HEAD_IN_PLANES`] planes `[P][C][H][W]` (plane `t` in slot
+/// `t mod P`) that u0 writes into and the head reads.
+const U0_OUT_LEN: usize = if HEAD_FUSED {
+    U0_PLANE_LEN
 } else {
-    LAYERS[HEAD].in_channels * HEAD_IN_PLANES * LAYERS[HEAD].in_size[1] * LAYERS[HEAD].in_size[2]
+    HEAD_IN_PLANES * U0_PLANE_LEN
 };
-/// The u0 plane buffer: one u0 output plane.
-const U0_SLOT_LEN: usize = U0_PLANE_LEN;
 
 /// The soft-argmax shape of `rows` depth rows.
 const fn head_soft_shape(rows: usize) -> SoftArgmaxShape {
@@ -650,11 +657,7 @@ const fn max(a: usize, b: usize) -> usize {
 /// UNet buffer, and the d1/u1 tensor plus the larger of d1's window and u0's plane buffers.
 pub const WORKSPACE_LEN: usize = max(
     max(FEATURE_STREAMS.1, UNET_BUFFER_LEN),
-    LIVE_END
-        + max(
-            D1_WINDOW_LEN + D1_TILE_LEN,
-            U0_SLOT_LEN + U0_GATHER_LEN + HEAD_RING_LEN,
-        ),
+    LIVE_END + max(D1_WINDOW_LEN + D1_TILE_LEN, U0_GATHER_LEN + U0_OUT_LEN),
 );
 
 // The streamed plan's assumptions about the network, checked against the spec at compile time.
@@ -727,6 +730,8 @@ const _: () = {
 /// next.
 pub struct Workspace {
     buf: [i8; WORKSPACE_LEN],
+    /// The line engine's weights, line and accumulators, reused by every kernel call.
+    scratch: LineScratch,
 }
 
 impl Default for Workspace {
@@ -740,11 +745,12 @@ impl Workspace {
     pub const fn new() -> Self {
         Self {
             buf: [0; WORKSPACE_LEN],
+            scratch: LineScratch::new(),
         }
     }
 
     /// Bytes of RAM the workspace occupies.
-    pub const BYTES: usize = WORKSPACE_LEN;
+    pub const BYTES: usize = core::mem::size_of::<Self>();
 }
 
 /// What a feature layer's line buffers hold: input rows `lo..lo + filled` (virtual rows:
@@ -790,6 +796,19 @@ fn stage_name(prefix: &str, layers: Range<usize>) -> heapless::String<32> {
 }
 
 impl<'a> Model<'a> {
+    /// Layer `index`'s parameters with the accumulator bound verified in
+    /// [`Model::from_blob`], for the kernels' checked entries.
+    fn checked(&self, index: usize) -> CheckedParams<'_> {
+        let l = &LAYERS[index];
+        let p = &self.layers[index];
+        CheckedParams::verified(
+            &ConvShape::from(l),
+            layer_params(l, p, index),
+            matches!(l.kind, LayerKind::ConvTranspose3d),
+            p.bound,
+        )
+    }
+
     fn soft(&self) -> SoftArgmaxParams<'_> {
         SoftArgmaxParams {
             exp: &self.exp,
@@ -824,7 +843,7 @@ impl<'a> Model<'a> {
         let plane = l.out_size[0] * l.out_size[1];
         let n = s.rows * l.out_size[1];
         for j in 0..FEATURE_CHUNKS {
-            self.feature_chunk(last, j, image, &mut ws.buf, &mut state)?;
+            self.feature_chunk(last, j, image, &mut ws.buf, &mut ws.scratch, &mut state)?;
             for (c, dst) in features.chunks_exact_mut(plane).enumerate() {
                 let src = s.chunk_start + c * n;
                 dst[j * n..(j + 1) * n].copy_from_slice(&ws.buf[src..src + n]);
@@ -853,6 +872,7 @@ impl<'a> Model<'a> {
         j: usize,
         image: &[u8],
         buf: &mut [i8],
+        scratch: &mut LineScratch,
         state: &mut [StreamState; FEATURE_LAYERS],
     ) -> Result<(), Error> {
         let layer = &LAYERS[l];
@@ -874,6 +894,7 @@ impl<'a> Model<'a> {
             st.filled - d
         };
         let params = layer_params(layer, &self.layers[l], l);
+        let checked = self.checked(l);
         // Padding is the value that the input offset turns into 0.
         let pad = (-params.input_offset) as i8;
         while filled < r {
@@ -904,7 +925,7 @@ impl<'a> Model<'a> {
                 let p = FEATURE_STREAMS.0[l - 1];
                 let jj = row / p.rows;
                 if state[l - 1].chunk != Some(jj) {
-                    self.feature_chunk(l - 1, jj, image, buf, state)?;
+                    self.feature_chunk(l - 1, jj, image, buf, scratch, state)?;
                 }
                 let n = (r - filled).min((jj + 1) * p.rows - row);
                 for c in 0..c_in {
@@ -928,7 +949,7 @@ impl<'a> Model<'a> {
         let window = s.window_start..s.window_start + c_in * r * w_in;
         let chunk = s.chunk_start..s.chunk_start + layer.out_channels * s.rows * layer.out_size[1];
         let (src, dst) = disjoint(buf, window, chunk);
-        conv2d_s8(&shape, src, &params, dst)?;
+        conv2d_s8_checked(&shape, src, &checked, dst, scratch)?;
         Ok(())
     }
 
@@ -955,16 +976,32 @@ impl<'a> Model<'a> {
         for s in sources {
             expect_len(config::FEATURE_LEN, s.len())?;
         }
-        let requant = self.cost[sources.len() - 1];
-        let buf = &mut ws.buf;
-        self.stream_d1(reference, sources, requant, buf)?;
+        let mut views = [SourceView {
+            features: &[],
+            warp: &[],
+        }; config::MAX_VIEWS - 1];
+        for (k, (v, s)) in views.iter_mut().zip(sources).enumerate() {
+            *v = SourceView {
+                features: s,
+                warp: &config::WARP_TABLES[k],
+            };
+        }
+        // Validated once; d1 and u0 each compute the whole volume from it piece by piece.
+        let cost = CostVolume::new(
+            &CostShape::EPSSN,
+            reference,
+            &views[..sources.len()],
+            self.cost[sources.len() - 1],
+        )?;
+        let Workspace { buf, scratch } = ws;
+        self.stream_d1(&cost, buf, scratch)?;
         let (s, l) = unet_range(PLAN.0[D1]);
         probe(&stage_name("cost", D1..D1 + 1), &buf[s..s + l]);
         // The small middle of the UNet, whole tensors in the UNet buffer as planned.
         let mut input = PLAN.0[D1];
         for (i, l) in LAYERS.iter().enumerate().take(U0).skip(D1 + 1) {
             let p = &self.layers[i];
-            let params = layer_params(l, p, i);
+            let checked = self.checked(i);
             let shape = ConvShape::from(l);
             let out = PLAN.0[i];
             let (a, b) = (unet_range(input), unet_range(out));
@@ -974,21 +1011,21 @@ impl<'a> Model<'a> {
                 disjoint(buf, a.0..a.0 + a.1, b.0..b.0 + b.1)
             };
             match l.kind {
-                LayerKind::Conv3d => conv3d_s8(&shape, src, &params, dst)?,
+                LayerKind::Conv3d => conv3d_s8_checked(&shape, src, &checked, dst, scratch)?,
                 LayerKind::ConvTranspose3d => {
                     let skip = if l.skip.is_some() {
                         Skip::InPlace { requant: p.skip }
                     } else {
                         Skip::None
                     };
-                    conv_transpose3d_s8(&shape, src, &params, skip, dst)?
+                    conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst, scratch)?
                 }
                 LayerKind::Conv2d => return Err(Error::Kernel(KernelError::NotTwoDimensional)),
             }
             probe(l.name, dst);
             input = out;
         }
-        self.stream_u0_head(reference, sources, requant, buf, depth)
+        self.stream_u0_head(&cost, buf, scratch, depth)
     }
 
     /// The front depth map from features; see [`Model::depth_from_features_probed`].
@@ -1007,10 +1044,9 @@ impl<'a> Model<'a> {
     /// are kept), and new planes are computed channel by channel for just the tile's rows.
     fn stream_d1(
         &self,
-        reference: &[i8],
-        sources: &[&[i8]],
-        requant: Requant,
+        cost: &CostVolume<'_>,
         buf: &mut [i8],
+        scratch: &mut LineScratch,
     ) -> Result<(), Error> {
         let l = &LAYERS[D1];
         let (kd, sd, pd) = (
@@ -1026,7 +1062,7 @@ impl<'a> Model<'a> {
         let window = LIVE_END..LIVE_END + D1_WINDOW_LEN;
         let tile = window.end..window.end + D1_TILE_LEN;
         let (d1_start, _) = unet_range(PLAN.0[D1]);
-        let params = layer_params(l, &self.layers[D1], D1);
+        let checked = self.checked(D1);
         let mut shape = ConvShape::from(l);
         shape.in_size = [kd, rows, width];
         shape.out_size = [1, D1_ROWS, out_width];
@@ -1066,27 +1102,12 @@ impl<'a> Model<'a> {
                         pad_top.fill(0);
                         let (real, pad_bottom) = rest.split_at_mut((r1 - r0) * width);
                         pad_bottom.fill(0);
-                        let feat = c * height * width;
-                        let span = feat + r0 * width..feat + r1 * width;
-                        cost_plane(
-                            reference,
-                            sources,
-                            &span,
-                            j as usize,
-                            CostShape {
-                                channels: 1,
-                                planes: 1,
-                                height: r1 - r0,
-                                width,
-                            },
-                            requant,
-                            real,
-                        )?;
+                        cost.rows(c, j as usize, r0..r1, real)?;
                     }
                     held += 1;
                 }
                 let (src, dst) = disjoint(buf, window.clone(), tile.clone());
-                conv3d_s8(&shape, src, &params, dst)?;
+                conv3d_s8_checked(&shape, src, &checked, dst, scratch)?;
                 let n = D1_ROWS * out_width;
                 for o in 0..l.out_channels {
                     let at = d1_start + ((o * out_planes + d) * out_rows + y * D1_ROWS) * out_width;
@@ -1097,26 +1118,67 @@ impl<'a> Model<'a> {
         Ok(())
     }
 
-    /// u0 one output plane at a time: the plane buffer first receives the cost-volume plane
+    /// u0 one output plane at a time: the plane's buffer first receives the cost-volume plane
     /// (u0's skip), then u0's transposed convolution of just the input planes that reach this
     /// output plane adds onto it in place, then the head turns it into depth rows: the fused
     /// head its `kernel[0]` rows at once, the general head (an overlapping kernel) the
-    /// `stride[0]` rows whose last input plane this is, from a ring of the last
-    /// `ceil(kernel / stride)` planes (zero planes shifted in past the last one).
+    /// `stride[0]` rows whose last input plane this is, from the ring of the last
+    /// `P = ceil(kernel / stride)` planes that u0 writes into (plane `t` in slot `t mod P`).
     fn stream_u0_head(
         &self,
-        reference: &[i8],
-        sources: &[&[i8]],
-        requant: Requant,
+        cost: &CostVolume<'_>,
         buf: &mut [i8],
+        scratch: &mut LineScratch,
         depth: &mut [U16F16],
+    ) -> Result<(), Error> {
+        let out = LIVE_END + U0_GATHER_LEN..LIVE_END + U0_GATHER_LEN + U0_OUT_LEN;
+        let head = &LAYERS[HEAD];
+        let soft = self.soft();
+        // The general head's weights laid out once per depth map, not once per step.
+        let mut head_weights = HeadWeights::new();
+        let head_checked = self.checked(HEAD);
+        let plan = if HEAD_FUSED {
+            None
+        } else {
+            let shape = ConvShape::from(head);
+            Some(HeadPlan::new(
+                &shape,
+                &head_checked,
+                &soft,
+                &mut head_weights,
+            )?)
+        };
+        // One step per u0 *output* plane (the head's input planes); u0's weights are laid
+        // out for its two plane phases once, not once per plane (the model's are immutable).
+        scratch.keep_weights();
+        let planes = self.u0_planes(cost, buf, scratch, depth, &plan, out.clone());
+        scratch.forget_weights();
+        planes?;
+        if let Some(plan) = &plan {
+            // Rows whose last input plane lies past u0's last (the kernel reads no plane
+            // outside the map, so the ring's stale slots are not read).
+            for t in LAYERS[U0].out_size[0]..head_steps(&ConvShape::from(head)) {
+                plan.step(&buf[out.clone()], t, depth)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The u0 planes of [`Self::stream_u0_head`], each followed by its head step.
+    fn u0_planes(
+        &self,
+        cost: &CostVolume<'_>,
+        buf: &mut [i8],
+        scratch: &mut LineScratch,
+        depth: &mut [U16F16],
+        plan: &Option<HeadPlan<'_>>,
+        out: Range<usize>,
     ) -> Result<(), Error> {
         let l = &LAYERS[U0];
         let [in_planes, in_rows, in_width] = l.in_size;
         let in_plane = in_rows * in_width;
         let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
-        let plane = LIVE_END..LIVE_END + U0_PLANE_LEN;
-        let params = layer_params(l, &self.layers[U0], U0);
+        let checked = self.checked(U0);
         let skip = Skip::InPlace {
             requant: self.layers[U0].skip,
         };
@@ -1127,28 +1189,15 @@ impl<'a> Model<'a> {
         head_shape.out_size[0] = head.kernel[0] as usize;
         let depth_rows = head_shape.out_size[0] * head.out_size[2];
         let soft = self.soft();
-        let features = 0..config::FEATURE_LEN;
-        let ring = LIVE_END + U0_SLOT_LEN + U0_GATHER_LEN..;
-        let ring = ring.start..ring.start + HEAD_RING_LEN;
-        buf[ring.clone()].fill(0);
-        // One step per u0 *output* plane (the head's input planes).
-        let out_planes = l.out_size[0];
-        for t in 0..out_planes {
-            cost_plane(
-                reference,
-                sources,
-                &features,
-                t,
-                CostShape {
-                    planes: 1,
-                    ..CostShape::EPSSN
-                },
-                requant,
-                &mut buf[plane.clone()],
-            )?;
+        let cost_plane = config::FEATURE_RANGE_BINS * config::FEATURE_COLUMNS;
+        for t in 0..l.out_size[0] {
+            let slot = if HEAD_FUSED { 0 } else { t % HEAD_IN_PLANES };
+            let plane = out.start + slot * U0_PLANE_LEN..out.start + (slot + 1) * U0_PLANE_LEN;
+            for (c, o) in buf[plane.clone()].chunks_exact_mut(cost_plane).enumerate() {
+                cost.rows(c, t, 0..config::FEATURE_RANGE_BINS, o)?;
+            }
             let (first, planes, pad, out_pad) = u0_plane(t);
-            let gather = LIVE_END + U0_SLOT_LEN..;
-            let gather = gather.start..gather.start + l.in_channels * planes * in_plane;
+            let gather = LIVE_END..LIVE_END + l.in_channels * planes * in_plane;
             for c in 0..l.in_channels {
                 for q in 0..planes {
                     let at = gather.start + (c * planes + q) * in_plane;
@@ -1166,7 +1215,7 @@ impl<'a> Model<'a> {
             shape.padding[0] = pad;
             shape.output_padding[0] = out_pad;
             let (src, dst) = disjoint(buf, gather, plane.clone());
-            conv_transpose3d_s8(&shape, src, &params, skip, dst)?;
+            conv_transpose3d_s8_checked(&shape, src, &checked, skip, dst, scratch)?;
             if HEAD_FUSED {
                 let rows = t * depth_rows..(t + 1) * depth_rows;
                 let actual = depth.len();
@@ -1181,85 +1230,14 @@ impl<'a> Model<'a> {
                     &soft,
                     depth_t,
                 )?;
-            } else {
-                self.head_step(buf, ring.clone(), Some(plane.clone()), t, depth)?;
-            }
-        }
-        if !HEAD_FUSED {
-            // Rows whose last input plane lies past u0's last: zero planes shifted in.
-            let mut t = out_planes;
-            while t < head_steps(&ConvShape::from(&LAYERS[HEAD])) {
-                self.head_step(buf, ring.clone(), None, t, depth)?;
-                t += 1;
+            } else if let Some(plan) = &plan {
+                // The `stride[0]` depth rows whose last input plane is `t`, from the ring
+                // of the last `P` u0 planes, fused with the soft-argmax.
+                plan.step(&buf[out.clone()], t, depth)?;
             }
         }
         Ok(())
     }
-
-    /// Step `t` of the general (non-fused) head: shifts u0 plane `t` (from `plane`, or zeros)
-    /// into the ring of the last `P` planes and runs [`head_step_s8`], which turns the ring
-    /// into the `stride[0]` depth rows whose last input plane is `t` (those inside the map),
-    /// fused with the soft-argmax.
-    fn head_step(
-        &self,
-        buf: &mut [i8],
-        ring: Range<usize>,
-        plane: Option<Range<usize>>,
-        t: usize,
-        depth: &mut [U16F16],
-    ) -> Result<(), Error> {
-        let head = &LAYERS[HEAD];
-        let [_, in_rows, in_width] = head.in_size;
-        let in_plane = in_rows * in_width;
-        for c in 0..head.in_channels {
-            let slot = ring.start + c * HEAD_IN_PLANES * in_plane;
-            buf.copy_within(slot + in_plane..slot + HEAD_IN_PLANES * in_plane, slot);
-            let last = slot + (HEAD_IN_PLANES - 1) * in_plane;
-            match &plane {
-                Some(p) => {
-                    let from = p.start + c * in_plane;
-                    buf.copy_within(from..from + in_plane, last);
-                }
-                None => buf[last..last + in_plane].fill(0),
-            }
-        }
-        let params = layer_params(head, &self.layers[HEAD], HEAD);
-        let shape = ConvShape::from(head);
-        head_step_s8(&shape, &buf[ring], t, &params, &self.soft(), depth)?;
-        Ok(())
-    }
-}
-
-/// Cost-volume plane `j` of the feature elements `span` (one channel's rows, or all of it) of
-/// the reference and every source view.
-fn cost_plane(
-    reference: &[i8],
-    sources: &[&[i8]],
-    span: &Range<usize>,
-    j: usize,
-    shape: CostShape,
-    requant: Requant,
-    out: &mut [i8],
-) -> Result<(), Error> {
-    let w = config::FEATURE_COLUMNS;
-    let mut views = [SourceView {
-        features: &[],
-        warp: &[],
-    }; config::MAX_VIEWS - 1];
-    for (k, (v, s)) in views.iter_mut().zip(sources).enumerate() {
-        *v = SourceView {
-            features: &s[span.clone()],
-            warp: &config::WARP_TABLES[k][j * w..(j + 1) * w],
-        };
-    }
-    cost_volume_s8(
-        &shape,
-        &reference[span.clone()],
-        &views[..sources.len()],
-        requant,
-        out,
-    )?;
-    Ok(())
 }
 
 /// `(start, len)` of a UNet region (an empty range for any other region).

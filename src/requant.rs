@@ -191,6 +191,20 @@ impl FastRequant {
 pub trait Apply: Copy {
     /// `MBQM(acc, M, shift)`.
     fn apply(self, acc: i32) -> i32;
+
+    /// A whole row of int8 outputs with step 1 (`out[i] = clamp(ReLU?(apply(acc[i]))
+    /// +sat skip[out[i]])`) through a specialised loop, if this requantisation has one:
+    /// returns false (nothing written) otherwise.
+    #[inline(always)]
+    fn row_s8(
+        self,
+        _acc: &[i32],
+        _out: &mut [i8],
+        _relu: bool,
+        _skip: Option<&[i32; 256]>,
+    ) -> bool {
+        false
+    }
 }
 
 impl Apply for Requant {

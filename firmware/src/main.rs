@@ -68,6 +68,9 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 }
 
 /// Recomputes the warp table of view `k` on the target and counts differing entries.
+// Not inlined (nor the self-test below): their stack frames then only exist while they run,
+// instead of adding to `main`'s frame under every later inference.
+#[inline(never)]
 fn warp_table_mismatches(k: usize) -> usize {
     let mut table = [geometry::WarpEntry::default(); config::PLANES * config::FEATURE_COLUMNS];
     let transform = geometry::RigidTransform::rolled_about_axis(
@@ -99,6 +102,7 @@ fn instructions(ticks: u32) -> u32 {
 
 /// Runs the golden pair through the serving path (feature cache, pairing by roll) and prints
 /// per-layer instruction counts; true when bit-exact.
+#[inline(never)]
 fn golden_self_test(
     model: &Model<'_>,
     clock: &TickCounter,
@@ -219,20 +223,21 @@ fn main() -> ! {
             failures += 1;
         }
     }
-    let model = match Model::from_blob(WEIGHTS) {
+    // One `Model` for the whole run, borrowed below: moving it into an `Option` would keep
+    // extra copies of its 2.7 KiB in `main`'s frame for good.
+    let model = Model::from_blob(WEIGHTS);
+    match &model {
         Ok(model) => {
             hprintln!("weights: {} bytes, blob verified", WEIGHTS.len());
-            if !golden_self_test(&model, &clock, ws, cache, depth) {
+            if !golden_self_test(model, &clock, ws, cache, depth) {
                 failures += 1;
             }
-            Some(model)
         }
         Err(e) => {
             hprintln!("weights refused: {:?}", e);
             failures += 1;
-            None
         }
-    };
+    }
     hprintln!(
         "stack high-water mark: {} of {} bytes",
         board::stack_high_water(),
@@ -240,12 +245,12 @@ fn main() -> ! {
     );
     if failures == 0 {
         hprintln!("self-test: PASS");
-        if let (Some(model), true) = (model, board::command_line_has("serve")) {
+        if let (Ok(model), true) = (&model, board::command_line_has("serve")) {
             hprintln!("serving the link on UART0");
             let now = || clock.now();
             let high_water = board::stack_high_water;
             let mut server = server::Server::new(
-                &model,
+                model,
                 ws,
                 cache,
                 depth,

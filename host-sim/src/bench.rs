@@ -1,6 +1,7 @@
 //! `host-sim bench`: boots the firmware's self-test in QEMU (Cortex-M7, `-icount shift=0`) and
 //! prints, per layer, the multiply-accumulates (from the compiled layer shapes) next to the
-//! instructions the target spent (CMSDK timer ticks × 40, printed by the firmware).
+//! instructions the target spent (CMSDK timer ticks × 40, printed by the firmware), the
+//! instructions per MAC and their ratio to the ISA limit of 0.5 (one `SMLAD` per two MACs).
 
 use std::io::Write;
 
@@ -14,6 +15,9 @@ pub struct BenchArgs {
     #[arg(long)]
     pub firmware: Option<std::path::PathBuf>,
 }
+
+/// Instructions per MAC of the ISA limit: one `SMLAD` does two MACs.
+const SMLAD_LIMIT: f64 = 0.5;
 
 /// Instruction count of one `layer NAME[ (view V)]: N instructions` line.
 fn parse_line(line: &str) -> Option<(String, u64)> {
@@ -47,8 +51,8 @@ pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
     let counts: Vec<(String, u64)> = console.lines().filter_map(parse_line).collect();
     writeln!(
         out,
-        "{:<24} {:>12} {:>14} {:>10}",
-        "layer", "MACs", "instructions", "instr/MAC"
+        "{:<24} {:>12} {:>14} {:>10} {:>9}",
+        "layer", "MACs", "instructions", "instr/MAC", "/ 0.5"
     )?;
     let (mut macs_total, mut instr_total) = (0u64, 0u64);
     for (name, instr) in &counts {
@@ -62,20 +66,26 @@ pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
             .sum();
         macs_total += macs;
         instr_total += instr;
-        let per = if macs > 0 {
-            format!("{:.2}", *instr as f64 / macs as f64)
+        let (per, ratio) = if macs > 0 {
+            let per = *instr as f64 / macs as f64;
+            (format!("{per:.2}"), format!("{:.1}", per / SMLAD_LIMIT))
         } else {
-            "-".into()
+            ("-".into(), "-".into())
         };
-        writeln!(out, "{name:<24} {macs:>12} {instr:>14} {per:>10}")?;
+        writeln!(
+            out,
+            "{name:<24} {macs:>12} {instr:>14} {per:>10} {ratio:>9}"
+        )?;
     }
+    let per = instr_total as f64 / macs_total.max(1) as f64;
     writeln!(
         out,
-        "{:<24} {:>12} {:>14} {:>10.2}",
+        "{:<24} {:>12} {:>14} {:>10.2} {:>9.1}",
         "total (full pair)",
         macs_total,
         instr_total,
-        instr_total as f64 / macs_total.max(1) as f64
+        per,
+        per / SMLAD_LIMIT
     )?;
     for line in console
         .lines()

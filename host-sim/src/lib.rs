@@ -6,6 +6,7 @@
 pub mod aris;
 pub mod beams;
 pub mod bench;
+pub mod budgets;
 pub mod calibration;
 pub mod dataset;
 pub mod figure;

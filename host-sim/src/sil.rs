@@ -51,6 +51,9 @@ pub struct SilArgs {
     /// Seconds to wait for any one reply.
     #[arg(long, default_value_t = 120)]
     pub timeout: u64,
+    /// The budgets file (default: `weights/budgets.json`).
+    #[arg(long)]
+    pub budgets: Option<PathBuf>,
 }
 
 /// Counts of a fuzz run.
@@ -110,6 +113,10 @@ pub struct SilReport {
     pub fuzz: Option<FuzzReport>,
     /// The firmware answered every status request and shut down cleanly.
     pub alive: bool,
+    /// The budgets checked (`weights/budgets.json`).
+    pub budgets: crate::budgets::Budgets,
+    /// What exceeds the budgets (empty: within budget).
+    pub budget_violations: Vec<String>,
 }
 
 fn repo_root() -> PathBuf {
@@ -701,6 +708,14 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     } else {
         instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
     };
+    let budgets = crate::budgets::Budgets::load(
+        &args
+            .budgets
+            .clone()
+            .unwrap_or_else(crate::budgets::default_path),
+    )?;
+    let ram = static_ram + u64::from(status.stack_high_water);
+    let budget_violations = budgets.violations(&instructions, ram, flash);
     let fuzz_alive = fuzz_report
         .as_ref()
         .is_none_or(|f| f.status_replies == f.status_requests && f.unanswered == 0);
@@ -719,7 +734,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         instructions,
         pairs,
         flash_bytes: flash,
-        ram_bytes: static_ram + u64::from(status.stack_high_water),
+        ram_bytes: ram,
         static_ram_bytes: static_ram,
         stack_high_water_bytes: status.stack_high_water,
         device_frames: status.frames,
@@ -727,6 +742,8 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         device_errors: status.errors,
         fuzz: fuzz_report,
         alive: shutdown_ok && exited && fuzz_alive,
+        budgets,
+        budget_violations,
     })
 }
 
@@ -768,12 +785,30 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
             )?;
         }
         writeln!(out, "alive: {}", r.alive)?;
+        writeln!(
+            out,
+            "budgets: {} instructions per depth map, RAM {} bytes, flash {} bytes: {}",
+            r.budgets.instructions_per_depth_map,
+            r.budgets.ram_bytes,
+            r.budgets.flash_bytes,
+            if r.budget_violations.is_empty() {
+                "within".to_string()
+            } else {
+                r.budget_violations.join("; ")
+            }
+        )?;
     }
     if !r.bit_exact {
         bail!("SIL: depth maps are not bit-exact with the host library");
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
+    }
+    if !r.budget_violations.is_empty() {
+        bail!(
+            "SIL: over budget (weights/budgets.json): {}",
+            r.budget_violations.join("; ")
+        );
     }
     Ok(())
 }

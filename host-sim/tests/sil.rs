@@ -40,11 +40,15 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     );
     let stack = r["stack_high_water_bytes"].as_u64().unwrap();
     assert!(stack > 0 && ram > stack, "ram {ram} stack {stack}");
-    assert!(ram <= 512 * 1024, "RAM budget: {ram}");
+    // The budgets of weights/budgets.json (which `host-sim sil` itself enforces).
+    let b = host_sim::budgets::Budgets::load(&host_sim::budgets::default_path()).unwrap();
+    assert!(ram <= b.ram_bytes, "RAM budget: {ram}");
+    assert!(flash > 0 && flash <= b.flash_bytes, "flash budget: {flash}");
     assert!(
-        flash > 0 && flash <= 2 * 1024 * 1024,
-        "flash budget: {flash}"
+        instr <= b.instructions_per_depth_map,
+        "instruction budget: {instr}"
     );
+    assert_eq!(r["budget_violations"], serde_json::json!([]));
     // Liveness: every status request between malformed messages was answered, every
     // malformed message got an error reply, and the firmware shut down on request.
     let f = &r["fuzz"];

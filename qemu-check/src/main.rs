@@ -13,7 +13,9 @@ use epssn::config;
 use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
 use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
 use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
-use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
+use epssn::kernels::cost_volume_s8::{
+    cost_volume_s8, cost_volume_s8_plain, CostShape, CostVolume, SourceView,
+};
 use epssn::kernels::head_s8::{head_s8, head_step_planes, head_step_s8, head_steps};
 use epssn::kernels::soft_argmax_s8::{
     head_soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
@@ -195,13 +197,12 @@ fn main() -> ! {
         let (hw, np) = (rows_in * cols_in, head_step_planes(&hs));
         let ring_len = hs.in_channels * np * hw;
         for t in 0..head_steps(&hs) {
-            for c in 0..hs.in_channels {
-                for s in 0..np {
-                    let dst = &mut b[(c * np + s) * hw..][..hw];
-                    match (t + s + 1).checked_sub(np).filter(|&z| z < planes) {
-                        Some(z) => dst.copy_from_slice(&input[(c * planes + z) * hw..][..hw]),
-                        None => dst.fill(-99),
-                    }
+            // Slot z mod P holds plane z; the other slots and planes past the end: garbage.
+            b[..ring_len].fill(-99);
+            for z in (t + 1).saturating_sub(np)..=t.min(planes - 1) {
+                for c in 0..hs.in_channels {
+                    let dst = &mut b[((z % np) * hs.in_channels + c) * hw..][..hw];
+                    dst.copy_from_slice(&input[(c * planes + z) * hw..][..hw]);
                 }
             }
             r1 = r1.and(head_step_s8(&hs, &b[..ring_len], t, &p, &sp, &mut d_steps));
@@ -263,6 +264,42 @@ fn main() -> ! {
         let same = r1.is_ok() && r2.is_ok() && a[..len] == b[..len];
         hprintln!(
             "cost volume, {} views: {}",
+            views + 1,
+            if same { "bit-exact" } else { "MISMATCH" }
+        );
+        checked += 1;
+        if !same {
+            failures += 1;
+        }
+        // The streamed model's pieces (one channel, one plane, a range of rows) of the
+        // prepared volume, which run the DSP column loop, against the plain volume.
+        let CostShape {
+            channels,
+            planes,
+            height,
+            width,
+        } = CostShape::EPSSN;
+        a[..len].fill(0);
+        let mut ok = true;
+        match CostVolume::new(&CostShape::EPSSN, reference, &srcs[..views], crq) {
+            Ok(cv) => {
+                for c in 0..channels {
+                    for j in 0..planes {
+                        // Two pieces per plane, split at a row that varies with the plane.
+                        let cut = (j * 5) % (height + 1);
+                        for rows in [0..cut, cut..height] {
+                            let at = ((c * planes + j) * height + rows.start) * width;
+                            let n = rows.len() * width;
+                            ok &= cv.rows(c, j, rows, &mut a[at..at + n]).is_ok();
+                        }
+                    }
+                }
+            }
+            Err(_) => ok = false,
+        }
+        let same = ok && a[..len] == b[..len];
+        hprintln!(
+            "cost volume pieces, {} views: {}",
             views + 1,
             if same { "bit-exact" } else { "MISMATCH" }
         );

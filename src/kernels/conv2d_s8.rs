@@ -6,7 +6,10 @@
 //!
 //! MACs: `O · OH · OW · I · kh · kw` (padded taps skipped, so slightly fewer at the border).
 
-use super::{check_conv, finish, ConvParams, ConvShape, KernelError};
+use super::{
+    check_conv, check_conv_shape, finish, CheckedParams, ConvParams, ConvShape, KernelError,
+    LineScratch,
+};
 
 fn check_2d(shape: &ConvShape) -> Result<(), KernelError> {
     if shape.kernel[2] != 1
@@ -75,7 +78,38 @@ pub fn conv2d_s8(
     output: &mut [i8],
 ) -> Result<(), KernelError> {
     check_2d(shape)?;
-    let bound = check_conv(shape, input.len(), params, output.len())?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    let checked = CheckedParams::new(shape, *params, false)?;
+    engine(shape, input, &checked, output, &mut LineScratch::new());
+    Ok(())
+}
+
+/// [`conv2d_s8`] with parameters whose accumulator bound was verified once
+/// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
+/// line engine works in the caller's `scratch`.
+pub fn conv2d_s8_checked(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) -> Result<(), KernelError> {
+    check_2d(shape)?;
+    checked.check_shape(shape, false)?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    engine(shape, input, checked, output, scratch);
+    Ok(())
+}
+
+/// The optimised engines on a validated shape and verified parameters.
+fn engine(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) {
+    let (params, bound) = (checked.params(), checked.bound());
     // Axes [H, W, 1] as [1, H, W]: the line engine's rows run along W (same memory layout).
     let s3 = ConvShape {
         kernel: [1, shape.kernel[0], shape.kernel[1]],
@@ -86,14 +120,13 @@ pub fn conv2d_s8(
         ..*shape
     };
     if super::line::conv_fits(&s3) {
-        super::line::run_conv(&s3, input, params, bound, output);
+        super::line::run_conv(&s3, input, params, bound, output, scratch);
     } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {
         // Axes [H, W, 1] used as [D, H, W]: rows of length 1 in the gather, same sums.
         super::conv3d_s8::im2col_engine(shape, input, params, output);
     } else {
         rows(shape, input, params, output);
     }
-    Ok(())
 }
 
 /// Row-blocked variant: two output channels per pass share every input load; the valid tap

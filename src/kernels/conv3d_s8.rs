@@ -5,7 +5,10 @@
 //!
 //! MACs: `O · OD · OH · OW · I · kd · kh · kw` (padded taps skipped).
 
-use super::{check_conv, finish, ConvParams, ConvShape, KernelError};
+use super::{
+    check_conv, check_conv_shape, finish, CheckedParams, ConvParams, ConvShape, KernelError,
+    LineScratch,
+};
 
 /// Plain reference: straightforward loops with a bounds test per tap.
 pub fn conv3d_s8_plain(
@@ -76,15 +79,44 @@ pub fn conv3d_s8(
     params: &ConvParams<'_>,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    let bound = check_conv(shape, input.len(), params, output.len())?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    let checked = CheckedParams::new(shape, *params, false)?;
+    engine(shape, input, &checked, output, &mut LineScratch::new());
+    Ok(())
+}
+
+/// [`conv3d_s8`] with parameters whose accumulator bound was verified once
+/// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
+/// line engine works in the caller's `scratch`.
+pub fn conv3d_s8_checked(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) -> Result<(), KernelError> {
+    checked.check_shape(shape, false)?;
+    check_conv_shape(shape, input.len(), output.len())?;
+    engine(shape, input, checked, output, scratch);
+    Ok(())
+}
+
+/// The optimised engines on a validated shape and verified parameters.
+fn engine(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) {
+    let (params, bound) = (checked.params(), checked.bound());
     if super::line::conv_fits(shape) {
-        super::line::run_conv(shape, input, params, bound, output);
+        super::line::run_conv(shape, input, params, bound, output, scratch);
     } else if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
         im2col_engine(shape, input, params, output);
     } else {
         rows_engine(shape, input, params, output);
     }
-    Ok(())
 }
 
 /// The row-blocked variant: two output channels per pass share every input load; valid

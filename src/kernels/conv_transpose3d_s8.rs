@@ -11,7 +11,10 @@
 //! MACs: `I · D · H · W · O · kd · kh · kw` (the scatter count; taps falling outside the
 //! output are skipped).
 
-use super::{check_conv_transpose, check_skip, finish, ConvParams, ConvShape, KernelError, Skip};
+use super::{
+    check_conv_transpose, check_conv_transpose_shape, check_skip, finish, CheckedParams,
+    ConvParams, ConvShape, KernelError, LineScratch, Skip,
+};
 use crate::requant::Requant;
 
 /// The skip operand of output voxel `idx`, read before the voxel is written.
@@ -116,14 +119,53 @@ pub fn conv_transpose3d_s8(
     skip: Skip<'_>,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    let bound = check_conv_transpose(shape, input.len(), params, output.len())?;
+    check_conv_transpose_shape(shape, input.len(), output.len())?;
+    let checked = CheckedParams::new(shape, *params, true)?;
     check_skip(&skip, output.len())?;
+    engine(
+        shape,
+        input,
+        &checked,
+        skip,
+        output,
+        &mut LineScratch::new(),
+    );
+    Ok(())
+}
+
+/// [`conv_transpose3d_s8`] with parameters whose accumulator bound was verified once
+/// ([`CheckedParams`]): per call only the shape, the slice lengths and the skip multiplier
+/// are validated, and the line engine works in the caller's `scratch`.
+pub fn conv_transpose3d_s8_checked(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    skip: Skip<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) -> Result<(), KernelError> {
+    checked.check_shape(shape, true)?;
+    check_conv_transpose_shape(shape, input.len(), output.len())?;
+    check_skip(&skip, output.len())?;
+    engine(shape, input, checked, skip, output, scratch);
+    Ok(())
+}
+
+/// The optimised engines on a validated shape, verified parameters and skip.
+fn engine(
+    shape: &ConvShape,
+    input: &[i8],
+    checked: &CheckedParams<'_>,
+    skip: Skip<'_>,
+    output: &mut [i8],
+    scratch: &mut LineScratch,
+) {
+    let (params, bound) = (checked.params(), checked.bound());
     if super::line::transposed_fits(shape) {
-        super::line::run_transposed(shape, input, params, bound, &skip, output);
+        super::line::run_transposed(shape, input, params, bound, &skip, output, scratch);
     } else {
         taps_engine(shape, input, params, &skip, output);
     }
-    Ok(())
 }
 
 /// Gather variant without stack buffers: per-axis tap lists computed once per

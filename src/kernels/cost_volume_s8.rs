@@ -56,6 +56,16 @@ fn check(
     requant: Requant,
     output: &[i8],
 ) -> Result<(), KernelError> {
+    check_inner(shape, reference, sources, requant, output.len())
+}
+
+fn check_inner(
+    shape: &CostShape,
+    reference: &[i8],
+    sources: &[SourceView<'_>],
+    requant: Requant,
+    output_len: usize,
+) -> Result<(), KernelError> {
     if !(1..=2).contains(&sources.len()) {
         return Err(KernelError::ViewCount {
             sources: sources.len(),
@@ -73,7 +83,7 @@ fn check(
         .checked_mul(shape.planes)
         .ok_or(KernelError::SizeOverflow)?;
     expect(Operand::Reference, feat, reference.len())?;
-    expect(Operand::Output, vol, output.len())?;
+    expect(Operand::Output, vol, output_len)?;
     for (k, s) in sources.iter().enumerate() {
         expect(Operand::Source(k as u8), feat, s.features.len())?;
         expect(Operand::Warp(k as u8), table, s.warp.len())?;
@@ -277,6 +287,170 @@ pub fn cost_volume_s8(
     Ok(())
 }
 
+/// The cost volume prepared once for computing it piece by piece (the streamed model
+/// computes it in rows of single planes, twice per depth map): the arguments are validated
+/// and the two-view table built once in [`CostVolume::new`], so a piece costs its voxels and
+/// a per-plane tap set-up. Same bits as [`cost_volume_s8`] and [`cost_volume_s8_plain`].
+pub struct CostVolume<'a> {
+    shape: CostShape,
+    reference: &'a [i8],
+    sources: [SourceView<'a>; 2],
+    views: usize,
+    requant: Requant,
+    /// Two views: `clamp(MBQM((v0 − v1)²))` at index `v0 − v1 + 255` (`0..=510`; the last
+    /// entry is never read, it makes the index mask `& 511` exact).
+    table: [i8; 512],
+}
+
+impl<'a> CostVolume<'a> {
+    /// Validates the operands as [`cost_volume_s8`] does (the output is not known yet).
+    pub fn new(
+        shape: &CostShape,
+        reference: &'a [i8],
+        sources: &[SourceView<'a>],
+        requant: Requant,
+    ) -> Result<Self, KernelError> {
+        let vol = shape
+            .channels
+            .checked_mul(shape.planes)
+            .and_then(|x| x.checked_mul(shape.height))
+            .and_then(|x| x.checked_mul(shape.width))
+            .ok_or(KernelError::SizeOverflow)?;
+        // `check` wants an output slice of the volume's length; only its length is read.
+        check_lengths_only(shape, reference, sources, requant, vol)?;
+        if shape.width > MAX_WIDTH {
+            return Err(KernelError::SizeOverflow);
+        }
+        let empty = SourceView {
+            features: &[],
+            warp: &[],
+        };
+        let mut views = [empty; 2];
+        for (v, s) in views.iter_mut().zip(sources) {
+            *v = *s;
+        }
+        Ok(Self {
+            shape: *shape,
+            reference,
+            sources: views,
+            views: sources.len(),
+            requant,
+            table: core::array::from_fn(|i| {
+                let d = i as i32 - 255;
+                requant.apply(d * d).clamp(0, 127) as i8
+            }),
+        })
+    }
+
+    /// Rows `rows` of plane `plane` of channel `channel` (`rows.len() × width` voxels).
+    pub fn rows(
+        &self,
+        channel: usize,
+        plane: usize,
+        rows: core::ops::Range<usize>,
+        out: &mut [i8],
+    ) -> Result<(), KernelError> {
+        let CostShape {
+            channels,
+            planes,
+            height,
+            width,
+        } = self.shape;
+        if channel >= channels || plane >= planes || rows.start > rows.end || rows.end > height {
+            return Err(KernelError::SizeOverflow);
+        }
+        let n = (rows.end - rows.start) * width;
+        expect(Operand::Output, n, out.len())?;
+        if n == 0 {
+            return Ok(());
+        }
+        let start = (channel * height + rows.start) * width;
+        let span = start..start + n;
+        let reference = &self.reference[span.clone()];
+        let mut taps = [[Tap::default(); MAX_WIDTH]; 2];
+        for (t, s) in taps.iter_mut().zip(&self.sources[..self.views]) {
+            for (t, &e) in t
+                .iter_mut()
+                .zip(&s.warp[plane * width..(plane + 1) * width])
+            {
+                *t = Tap::new(e);
+            }
+        }
+        let src0 = &self.sources[0].features[span.clone()];
+        if self.views == 1 {
+            // Column by column (the column's tap stays in registers down the rows), each
+            // tap as two adjacent source columns `c, c + 1` and their weights.
+            for (b, t) in taps[0][..width].iter().enumerate() {
+                let (c, wl, wr) = if width < 2 {
+                    (usize::MAX, 0, 0)
+                } else if t.wr > 0 || t.wl == 0 {
+                    // Interpolating (right = left + 1), or invisible (weights 0).
+                    ((t.left as usize).min(width - 2), t.wl, t.wr)
+                } else if (t.left as usize) + 1 < width {
+                    (t.left as usize, t.wl, 0)
+                } else {
+                    (t.left as usize - 1, 0, t.wl)
+                };
+                if crate::dsp::cost_column(out, reference, src0, width, b, c, (wl, wr), &self.table)
+                {
+                    continue;
+                }
+                // Not a two-column tap (a single column): the plain arithmetic.
+                let (l, r) = (
+                    (t.left as usize).min(width - 1),
+                    (t.right as usize).min(width - 1),
+                );
+                let (wl, wr) = (t.wl as i32, t.wr as i32);
+                let b = b.min(width - 1);
+                for ((o, v), s) in out
+                    .chunks_exact_mut(width)
+                    .zip(reference.chunks_exact(width))
+                    .zip(src0.chunks_exact(width))
+                {
+                    let w = (s[l] as i32 * wl + s[r] as i32 * wr + 128) >> 8;
+                    o[b] = self.table[(v[b] as i32 - w + 255) as usize & 511];
+                }
+            }
+            return Ok(());
+        }
+        let src1 = &self.sources[1].features[span];
+        let fast = self.requant.fits_fast(9 * 128 * 128);
+        let frq = FastRequant::new(self.requant);
+        for (((out_r, ref_r), s0r), s1r) in out
+            .chunks_exact_mut(width)
+            .zip(reference.chunks_exact(width))
+            .zip(src0.chunks_exact(width))
+            .zip(src1.chunks_exact(width))
+        {
+            for (b, o) in out_r.iter_mut().enumerate() {
+                let v0 = ref_r[b] as i32;
+                let v1 = taps[0][b].warp(s0r);
+                let v2 = taps[1][b].warp(s1r);
+                let sum = v0 + v1 + v2;
+                let x = 3 * (v0 * v0 + v1 * v1 + v2 * v2) - sum * sum;
+                let q = if fast {
+                    frq.apply(x)
+                } else {
+                    self.requant.apply(x)
+                };
+                *o = q.clamp(0, 127) as i8;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// [`check`] for an output of `output_len` elements.
+fn check_lengths_only(
+    shape: &CostShape,
+    reference: &[i8],
+    sources: &[SourceView<'_>],
+    requant: Requant,
+    output_len: usize,
+) -> Result<(), KernelError> {
+    check_inner(shape, reference, sources, requant, output_len)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::testutil::Rng;
@@ -340,6 +514,26 @@ mod tests {
             cost_volume_s8(&shape, &reference, &views[..n_src], rq, &mut o).unwrap();
             assert_eq!(a, o, "case {case} {shape:?}");
             assert!(a.iter().all(|&v| v >= 0));
+            // Piece by piece: every (channel, plane, row range) of the prepared volume.
+            let cv = CostVolume::new(&shape, &reference, &views[..n_src], rq).unwrap();
+            let (h, w) = (shape.height, shape.width);
+            for c in 0..shape.channels {
+                for j in 0..shape.planes {
+                    for r0 in 0..=h {
+                        for r1 in r0..=h {
+                            let mut piece = vec![7i8; (r1 - r0) * w];
+                            cv.rows(c, j, r0..r1, &mut piece).unwrap();
+                            let at = ((c * shape.planes + j) * h + r0) * w;
+                            assert_eq!(piece, a[at..at + (r1 - r0) * w], "case {case}");
+                        }
+                    }
+                }
+            }
+            let mut one = vec![0i8; w];
+            assert!(cv.rows(shape.channels, 0, 0..1, &mut one).is_err());
+            assert!(cv.rows(0, shape.planes, 0..1, &mut one).is_err());
+            assert!(cv.rows(0, 0, 0..h + 1, &mut one).is_err());
+            assert!(cv.rows(0, 0, 0..1, &mut one[..w - 1]).is_err());
         }
     }
 

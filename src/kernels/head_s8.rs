@@ -6,7 +6,8 @@
 //! bins, azimuth columns). Step `t` gives the `sd` depth rows `e = sd·t − pd + ψ`
 //! (`ψ < sd`) whose last input plane is `t`: they read the `P = ceil(kd / sd)` planes
 //! `t − P + 1 ..= t` (tap `kz = ψ + sd·j` for plane `t − j`), which the streamed model keeps in
-//! a ring `[C][P][H][W]`, oldest first ([`head_step_s8`]); [`head_s8`] runs every step on a
+//! a ring of `P` planes `[P][C][H][W]`, plane `z` in slot `z mod P` ([`head_step_s8`]: nothing
+//! is shifted, and u0 writes each new plane straight into its slot); [`head_s8`] runs every step on a
 //! whole `[C][D][H][W]` input. Planes outside `0..D` read as absent (no contribution).
 //!
 //! On the column axis an output column `a = sw·g − pw + φ` (`φ < sw`) reads the
@@ -16,7 +17,7 @@
 //! (`[y][column slot][plane][channel]`, one new column per position: column `x` lives in slot
 //! `x mod Q` and the weights are prepared for each rotation), computes every ray phase
 //! `(ψ, φ)` of the position two rays × two range bins per [`crate::dsp::dot2x2`], requantises
-//! with [`FastRequant`] when the accumulator bound allows, tracks each ray's maximum while
+//! with one `SMMULR` (`RowRequant`) when the accumulator bound allows, tracks each ray's maximum while
 //! producing its logits, and reduces the ray at once (single-pass soft-argmax).
 //!
 //! The range axis must have kernel == stride, no padding and no output padding for the
@@ -26,13 +27,19 @@
 //! MACs per logit: `C · ceil(kd / sd) · ceil(kw / sw)` (zero taps included), plus the
 //! soft-argmax.
 
+use super::line::RowRequant;
 use super::soft_argmax_s8::{
     check_params, ray_depth_max, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
 };
-use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
-use crate::requant::{Apply, FastRequant};
+use super::{
+    check_conv_transpose, check_conv_transpose_shape, finish, mul3, CheckedParams, ConvParams,
+    ConvShape, KernelError, Operand,
+};
+use crate::requant::Apply;
 use fixed::types::U16F16;
 
+/// Most input range rows of the optimised kernel (its accumulator rows).
+pub const MAX_FAST_ROWS: usize = 128;
 /// Most words of the gathered inputs of one column position (`H` range rows of
 /// `Q · P · up4(C) / 2` words).
 pub const HEAD_COL_WORDS: usize = 1024;
@@ -62,8 +69,8 @@ pub const fn head_steps(shape: &ConvShape) -> usize {
     }
 }
 
-/// Where the planes of step `t` are: a ring `[C][P][H][W]` (slot `P − 1 − j` holds plane
-/// `t − j`) or the whole input `[C][D][H][W]`.
+/// Where the planes of step `t` are: a ring `[P][C][H][W]` (slot `z mod P` holds plane `z`)
+/// or the whole input `[C][D][H][W]`.
 #[derive(Clone, Copy)]
 struct Planes<'a> {
     data: &'a [i8],
@@ -71,8 +78,8 @@ struct Planes<'a> {
     channel: usize,
     /// `H · W`.
     plane: usize,
-    /// `Some(P)` for a ring.
-    ring: Option<usize>,
+    /// `Some((P, C·H·W))` for a ring.
+    ring: Option<(usize, usize)>,
     /// `D`.
     depth: usize,
     t: usize,
@@ -87,7 +94,7 @@ impl Planes<'_> {
             return None;
         }
         Some(match self.ring {
-            Some(p) => (p - 1 - j) * self.plane,
+            Some((p, slot)) => (z % p) * slot,
             None => z * self.plane,
         })
     }
@@ -113,7 +120,7 @@ fn check(
     Ok(bound)
 }
 
-/// Length of the ring `[C][P][H][W]` of [`head_step_s8`].
+/// Length of the ring `[P][C][H][W]` of [`head_step_s8`].
 fn ring_len(shape: &ConvShape) -> Result<usize, KernelError> {
     let [_, h, w] = shape.in_size;
     mul3([shape.in_channels, head_step_planes(shape), h])?
@@ -133,9 +140,9 @@ fn ring_planes<'a>(shape: &ConvShape, ring: &'a [i8], t: usize) -> Planes<'a> {
     let p = head_step_planes(shape);
     Planes {
         data: ring,
-        channel: p * h * w,
+        channel: h * w,
         plane: h * w,
-        ring: Some(p),
+        ring: Some((p, shape.in_channels * h * w)),
         depth: d,
         t,
     }
@@ -154,7 +161,7 @@ fn whole_planes<'a>(shape: &ConvShape, input: &'a [i8], t: usize) -> Planes<'a> 
 }
 
 /// Step `t` of the head, plain reference: the depth rows `sd·t − pd + 0..sd` inside the map,
-/// from the ring `[C][P][H][W]` of input planes `t − P + 1 ..= t` (oldest first, `P` from
+/// from the ring `[P][C][H][W]` of input planes `t − P + 1 ..= t` (plane `z` in slot `z mod P`, `P` from
 /// [`head_step_planes`]; slots of planes outside `0..D` are not read). Each logit straight
 /// from the transposed convolution's definition, then [`soft_argmax_s8_plain`] per ray.
 /// `shape` is the whole head, `depth` the whole `[E][A]` map.
@@ -187,6 +194,87 @@ pub fn head_step_s8(
     let planes = ring_planes(shape, ring, t);
     run(shape, bound, params, soft, depth, |_| planes);
     Ok(())
+}
+
+/// The head prepared once for the steps of a depth map: shape, parameters and soft-argmax
+/// validated (the weight bound taken from [`CheckedParams`], verified once per model) and the
+/// optimised kernel's weights laid out, so each [`HeadPlan::step`] only checks the ring and
+/// depth lengths. Same bits as [`head_step_s8`] step by step. The laid-out weights live in
+/// the caller's [`HeadWeights`] (2 KiB: a plan is cheap to move).
+pub struct HeadPlan<'a> {
+    shape: ConvShape,
+    params: ConvParams<'a>,
+    soft: SoftArgmaxParams<'a>,
+    fast: Option<(Fast, bool)>,
+    wbuf: &'a [u32; HEAD_W_WORDS],
+}
+
+/// The optimised head kernel's weights, as [`HeadPlan::new`] lays them out.
+pub struct HeadWeights([u32; HEAD_W_WORDS]);
+
+impl HeadWeights {
+    /// Zeroed.
+    pub const fn new() -> Self {
+        Self([0; HEAD_W_WORDS])
+    }
+}
+
+impl Default for HeadWeights {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<'a> HeadPlan<'a> {
+    /// Validates the head `shape` (the whole head: `depth` is the whole `[E][A]` map) with
+    /// `checked` (verified for its kernel and channels, transposed) and `soft`, and prepares
+    /// the optimised kernel's weights when the shape suits it.
+    pub fn new(
+        shape: &ConvShape,
+        checked: &CheckedParams<'a>,
+        soft: &SoftArgmaxParams<'a>,
+        weights: &'a mut HeadWeights,
+    ) -> Result<Self, KernelError> {
+        checked.check_shape(shape, true)?;
+        if shape.out_channels != 1 {
+            return Err(KernelError::NotStreamableHead);
+        }
+        check_conv_transpose_shape(shape, whole_len(shape)?, mul3(shape.out_size)?)?;
+        check_params(soft, shape.out_size[1])?;
+        let params = *checked.params();
+        let fast = fast_sizes(shape).map(|f| {
+            prepare_weights(shape, &f, &params, &mut weights.0);
+            (f, params.requant[0].fits_fast(checked.bound()))
+        });
+        Ok(Self {
+            shape: *shape,
+            params,
+            soft: *soft,
+            fast,
+            wbuf: &weights.0,
+        })
+    }
+
+    /// Step `t` (as [`head_step_s8`]) from the ring `[P][C][H][W]` of its input planes.
+    pub fn step(&self, ring: &[i8], t: usize, depth: &mut [U16F16]) -> Result<(), KernelError> {
+        let shape = &self.shape;
+        super::expect(Operand::Input, ring_len(shape)?, ring.len())?;
+        let [rows, _, columns] = shape.out_size;
+        super::expect(Operand::Depth, rows * columns, depth.len())?;
+        let planes = ring_planes(shape, ring, t);
+        let (p, soft) = (&self.params, &self.soft);
+        match &self.fast {
+            Some((f, true)) => {
+                let rq = RowRequant::new(p.requant[0]);
+                step_fast(shape, f, &planes, p, rq, self.wbuf, soft, depth);
+            }
+            Some((f, false)) => {
+                step_fast(shape, f, &planes, p, p.requant[0], self.wbuf, soft, depth);
+            }
+            None => step_plain(shape, &planes, p, soft, depth),
+        }
+        Ok(())
+    }
 }
 
 /// The whole head on a whole input `[C][D][H][W]` → depth `[E][A]`, plain reference (every
@@ -329,7 +417,8 @@ fn fast_sizes(shape: &ConvShape) -> Option<Fast> {
         .checked_mul(kh)?
         .checked_mul(2 * n)?;
     let col_words = ih.checked_mul(n)?;
-    (w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS).then_some(Fast {
+    let fits = w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS && ih <= MAX_FAST_ROWS;
+    fits.then_some(Fast {
         planes,
         cols,
         vp,
@@ -370,7 +459,7 @@ fn run<'a>(
                 &f,
                 &p,
                 params,
-                FastRequant::new(rq),
+                RowRequant::new(rq),
                 &wbuf,
                 soft,
                 depth,
@@ -453,10 +542,8 @@ fn gather_column(
             let x = x.unwrap_or(0);
             match (plane(2 * m), plane(2 * m + 1)) {
                 (Some(pa), Some(pb)) => {
-                    let it = rows.chunks_exact_mut(n);
-                    for ((d, ra), rb) in it.zip(pa.chunks_exact(iw)).zip(pb.chunks_exact(iw)) {
-                        d[k] = crate::dsp::pack(ra[x] as i16 + off, rb[x] as i16 + off);
-                    }
+                    let (a, b) = (&pa[x..], &pb[x..]);
+                    crate::dsp::pack_strided(&mut rows[k..], n, (a, b, iw), ih, off, off);
                 }
                 (Some(pa), None) => {
                     for (d, ra) in rows.chunks_exact_mut(n).zip(pa.chunks_exact(iw)) {
@@ -473,9 +560,47 @@ fn gather_column(
     }
 }
 
+/// Logits `out[y·kh + ky] = clamp(ReLU?(rq(acc[y])))` of one ray and range tap, and the
+/// running maximum `max` updated with them.
+trait LogitRequant: Apply {
+    #[inline(always)]
+    fn logits(self, acc: &[i32], relu: bool, out: &mut [i8], tap: (usize, usize), max: i8) -> i8 {
+        requant_logits(acc, self, relu, out, tap, max)
+    }
+}
+
+impl LogitRequant for crate::requant::Requant {}
+
+impl LogitRequant for RowRequant {
+    #[inline(always)]
+    fn logits(self, acc: &[i32], relu: bool, out: &mut [i8], tap: (usize, usize), max: i8) -> i8 {
+        match tap {
+            (0, 1) => self.row_max(acc, out, relu, max),
+            _ => requant_logits(acc, self, relu, out, tap, max),
+        }
+    }
+}
+
+#[inline(always)]
+fn requant_logits<R: Apply>(
+    acc: &[i32],
+    rq: R,
+    relu: bool,
+    out: &mut [i8],
+    (ky, kh): (usize, usize),
+    mut max: i8,
+) -> i8 {
+    let q = |a: i32| finish(rq.apply(a), relu, None);
+    for (d, &a) in out.iter_mut().skip(ky).step_by(kh.max(1)).zip(acc) {
+        *d = q(a);
+        max = max.max(*d);
+    }
+    max
+}
+
 /// One step, optimised (validated shape that [`fast_sizes`] accepts, weights prepared).
 #[allow(clippy::too_many_arguments)]
-fn step_fast<R: Apply>(
+fn step_fast<R: LogitRequant>(
     shape: &ConvShape,
     f: &Fast,
     src: &Planes<'_>,
@@ -502,6 +627,7 @@ fn step_fast<R: Apply>(
     let g_hi = (columns - 1 + pw) / sw;
     let mut col = [0u32; HEAD_COL_WORDS];
     let mut logits = [[0i8; MAX_BINS]; 2];
+    let mut acc = [[0i32; MAX_FAST_ROWS]; 2];
     let inside = |x: usize| (x < iw).then_some(x);
     for j in 0..f.cols {
         // Columns g_lo − j, in slot (g_lo − j) mod Q.
@@ -529,35 +655,29 @@ fn step_fast<R: Apply>(
             if targets == [None, None] {
                 continue;
             }
+            // Both rays' accumulators over the range rows at once (one validated call per
+            // range tap), then each ray's logits requantised in a tight loop.
             let mut max = [i8::MIN; 2];
             for ky in 0..kh {
                 let w = &wbuf[((r * f.pairs + p) * kh + ky) * 2 * n..][..2 * n];
-                let mut y = 0;
-                while y < ih {
-                    let two = y + 1 < ih;
-                    let acc = crate::dsp::dot2x2(
-                        &col[y * n..ih * n],
-                        if two { n } else { 0 },
-                        w,
-                        n,
-                        [bias; 4],
+                let [aa, ab] = &mut acc;
+                crate::dsp::dot2x2_row(
+                    &col[..ih * n],
+                    n,
+                    ih,
+                    w,
+                    n,
+                    [bias; 2],
+                    (&mut aa[..ih], &mut ab[..ih], 1),
+                );
+                for half in 0..2 {
+                    max[half] = rq.logits(
+                        &acc[half][..ih],
+                        params.relu,
+                        &mut logits[half][..bins],
+                        (ky, kh),
+                        max[half],
                     );
-                    let q = |a: i32| finish(rq.apply(a), params.relu, None);
-                    let [la, lb] = &mut logits;
-                    let i = y * kh + ky;
-                    let (qa, qb) = (q(acc[0]), q(acc[2]));
-                    if let (Some(da), Some(db)) = (la.get_mut(i), lb.get_mut(i)) {
-                        (*da, *db) = (qa, qb);
-                    }
-                    max = [max[0].max(qa), max[1].max(qb)];
-                    if two {
-                        let (qa, qb) = (q(acc[1]), q(acc[3]));
-                        if let (Some(da), Some(db)) = (la.get_mut(i + kh), lb.get_mut(i + kh)) {
-                            (*da, *db) = (qa, qb);
-                        }
-                        max = [max[0].max(qa), max[1].max(qb)];
-                    }
-                    y += 2;
                 }
             }
             for (half, at) in targets.iter().enumerate() {
@@ -585,14 +705,13 @@ mod tests {
     fn ring_of(shape: &ConvShape, input: &[i8], t: usize) -> Vec<i8> {
         let [d, h, w] = shape.in_size;
         let p = head_step_planes(shape);
-        let hw = h * w;
-        let mut ring = vec![0i8; shape.in_channels * p * hw];
-        for c in 0..shape.in_channels {
-            for s in 0..p {
-                let dst = &mut ring[(c * p + s) * hw..][..hw];
-                match (t + s + 1).checked_sub(p).filter(|&z| z < d) {
-                    Some(z) => dst.copy_from_slice(&input[(c * d + z) * hw..][..hw]),
-                    None => dst.fill(77),
+        let (hw, ic) = (h * w, shape.in_channels);
+        let mut ring = vec![77i8; ic * p * hw];
+        for z in (t + 1).saturating_sub(p)..=t {
+            for c in 0..ic {
+                let dst = &mut ring[((z % p) * ic + c) * hw..][..hw];
+                if z < d {
+                    dst.copy_from_slice(&input[(c * d + z) * hw..][..hw]);
                 }
             }
         }
@@ -833,6 +952,54 @@ mod tests {
             ..epssn_head()
         };
         assert_eq!(head_steps(&huge), usize::MAX);
+    }
+
+    #[test]
+    fn plan_steps_equal_head_step_s8() {
+        let mut rng = Rng(0x5eed_4ead);
+        let exp = exp_table(0.05);
+        let soft = soft_params(&exp, 4);
+        for k in [[4, 1, 8], [2, 1, 4], [3, 1, 5]] {
+            let padding = [(k[0] - 2) / 2, 0, (k[2] - 4) / 2];
+            let (rows, columns) = (
+                15 * 2 + k[0] - 2 * padding[0],
+                15 * 4 + k[2] - 2 * padding[2],
+            );
+            let shape = ConvShape {
+                in_channels: 8,
+                out_channels: 1,
+                in_size: [16, 64, 16],
+                out_size: [rows, 64, columns],
+                kernel: k,
+                stride: [2, 1, 4],
+                padding,
+                output_padding: [0, 0, 0],
+            };
+            let (w, b, rq) = params(&mut rng, &shape);
+            let cp = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &rq,
+                input_offset: 0,
+                relu: false,
+            };
+            let checked = CheckedParams::new(&shape, cp, true).unwrap();
+            let mut weights = HeadWeights::new();
+            let plan = HeadPlan::new(&shape, &checked, &soft, &mut weights).unwrap();
+            let input = rng.i8s(8 * 16 * 64 * 16);
+            let mut a = vec![U16F16::ZERO; rows * columns];
+            let mut b2 = a.clone();
+            for t in 0..head_steps(&shape) {
+                let ring = ring_of(&shape, &input, t);
+                plan.step(&ring, t, &mut a).unwrap();
+                head_step_s8(&shape, &ring, t, &cp, &soft, &mut b2).unwrap();
+            }
+            assert_eq!(a, b2, "kernel {k:?}");
+            assert!(matches!(
+                plan.step(&input[..10], 0, &mut a),
+                Err(KernelError::Length { .. })
+            ));
+        }
     }
 
     #[test]

@@ -24,13 +24,12 @@
 //! 256-entry table of `MBQM(q_skip)`.
 
 use super::{ConvParams, ConvShape, Skip};
-use crate::dsp::dot2x2;
-use crate::requant::{Apply, FastRequant, Requant};
+use crate::requant::{Apply, Requant};
 
 /// Words (two i16 entries each) of the line buffer.
 pub const LINE_WORDS: usize = 1024;
 /// Words (two i16 weights each) of the reordered weights of one call or phase.
-pub const WEIGHT_WORDS: usize = 1024;
+pub const WEIGHT_WORDS: usize = 3456;
 /// Most line entries per column (`v`, padded to a multiple of 4).
 pub const MAX_V: usize = 256;
 /// Largest column stride of a transposed convolution the engine takes.
@@ -44,18 +43,83 @@ pub(crate) const fn up4(x: usize) -> usize {
     x.div_ceil(4) * 4
 }
 
+/// [`crate::requant::FastRequant`]'s arithmetic with one `SMMULR` ([`crate::dsp::smmulr`]):
+/// for `a = acc · 2^left` with `|a| < 2^30`, `SRDHM(a, M) = ⌊(a·M + 2^30) / 2^31⌋ =
+/// ⌊(2a·M + 2^31) / 2^32⌋`, and `2a` fits i32; then the same rounding right shift. Exact
+/// wherever `FastRequant` is ([`Requant::fits_fast`]), in 6 instructions instead of 10.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct RowRequant {
+    multiplier: i32,
+    /// `left + 1`.
+    left1: u32,
+    right: u32,
+    half: i32,
+    /// −1 when `right > 0` (ties of negative values round away from zero), else 0.
+    neg: i32,
+}
+
+impl RowRequant {
+    /// Prepares `rq` (shifts clamped like [`crate::requant::FastRequant::new`]).
+    pub(crate) const fn new(rq: Requant) -> Self {
+        let left = if rq.shift > 0 { rq.shift as u32 } else { 0 };
+        let right = if rq.shift < 0 {
+            let r = rq.shift.wrapping_neg();
+            if r > 31 || r < 0 {
+                31
+            } else {
+                r as u32
+            }
+        } else {
+            0
+        };
+        RowRequant {
+            multiplier: rq.multiplier,
+            left1: if left > 30 { 31 } else { left + 1 },
+            right,
+            half: if right > 0 { 1 << (right - 1) } else { 0 },
+            neg: if right > 0 { -1 } else { 0 },
+        }
+    }
+}
+
+impl RowRequant {
+    /// `out[i]` = `acc[i]` requantised, ReLU'd if `relu` and clamped to int8 (as
+    /// [`super::finish`] without a skip), and the larger of `max` and those values
+    /// ([`crate::dsp::requant_max_row`]).
+    #[inline(always)]
+    pub(crate) fn row_max(self, acc: &[i32], out: &mut [i8], relu: bool, max: i8) -> i8 {
+        let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
+        crate::dsp::requant_max_row(acc, out, f, relu, max)
+    }
+}
+
+impl Apply for RowRequant {
+    #[inline(always)]
+    fn apply(self, acc: i32) -> i32 {
+        let x = crate::dsp::smmulr(acc.wrapping_shl(self.left1), self.multiplier);
+        x.wrapping_add(self.half).wrapping_add((x >> 31) & self.neg) >> self.right
+    }
+
+    #[inline(always)]
+    fn row_s8(self, acc: &[i32], out: &mut [i8], relu: bool, skip: Option<&[i32; 256]>) -> bool {
+        let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
+        crate::dsp::requant_row_s8(acc, out, f, relu, skip);
+        true
+    }
+}
+
 /// Prepared requantisations of `params` when every channel fits the fast path for the
 /// layer's worst-case accumulator `bound`.
 pub(crate) fn fast_requants(
     requant: &[Requant],
     bound: i64,
-) -> Option<[FastRequant; MAX_FAST_CHANNELS]> {
+) -> Option<[RowRequant; MAX_FAST_CHANNELS]> {
     if requant.len() > MAX_FAST_CHANNELS || !requant.iter().all(|r| r.fits_fast(bound)) {
         return None;
     }
-    let mut f = [FastRequant::default(); MAX_FAST_CHANNELS];
+    let mut f = [RowRequant::default(); MAX_FAST_CHANNELS];
     for (f, &r) in f.iter_mut().zip(requant) {
-        *f = FastRequant::new(r);
+        *f = RowRequant::new(r);
     }
     Some(f)
 }
@@ -85,16 +149,74 @@ pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> Sk
     }
 }
 
-/// `t` → output: ReLU, skip add (table), int8 clamp; as [`super::finish`].
-#[inline(always)]
-fn store(out: &mut [i8], idx: usize, t: i32, relu: bool, skip: SkipLut<'_>) {
-    let t = if relu { t.max(0) } else { t };
-    let y = match skip {
-        SkipLut::None => t,
-        SkipLut::Separate(s, lut) => t.saturating_add(lut[s[idx] as u8 as usize]),
-        SkipLut::InPlace(lut) => t.saturating_add(lut[out[idx] as u8 as usize]),
+/// Requantises one row of one channel's accumulators and stores it: output `q` at
+/// `out[start + q · step]` = ReLU, skip add (table), int8 clamp, as [`super::finish`]. The
+/// skip kind and the ReLU are decided once per row, so each output costs the requantisation
+/// and about 8 instructions more. Not inlined: in its own function the loop keeps its
+/// operands in registers instead of reloading them from the engine's stack frame.
+#[inline(never)]
+fn requant_row<R: Apply>(
+    acc: &[i32],
+    rq: R,
+    relu: bool,
+    skip: SkipLut<'_>,
+    out: &mut [i8],
+    start: usize,
+    step: usize,
+) {
+    let Some(len) = acc.len().checked_sub(1).map(|l| l * step + 1) else {
+        return;
     };
-    out[idx] = y.clamp(-128, 127) as i8;
+    let Some(end) = start.checked_add(len) else {
+        return;
+    };
+    let Some(dst) = out.get_mut(start..end) else {
+        return;
+    };
+    if step == 1 {
+        let lut = match skip {
+            SkipLut::None => Some(None),
+            SkipLut::InPlace(lut) => Some(Some(lut)),
+            SkipLut::Separate(..) => None,
+        };
+        if let Some(lut) = lut {
+            if rq.row_s8(acc, dst, relu, lut) {
+                return;
+            }
+        }
+    }
+    match (skip, relu) {
+        (SkipLut::None, true) => store_row(acc, dst, step, |a, _, _| rq.apply(a).max(0)),
+        (SkipLut::None, false) => store_row(acc, dst, step, |a, _, _| rq.apply(a)),
+        (SkipLut::InPlace(lut), true) => store_row(acc, dst, step, |a, old, _| {
+            rq.apply(a).max(0).saturating_add(lut[old as u8 as usize])
+        }),
+        (SkipLut::InPlace(lut), false) => store_row(acc, dst, step, |a, old, _| {
+            rq.apply(a).saturating_add(lut[old as u8 as usize])
+        }),
+        (SkipLut::Separate(s, lut), _) => {
+            let skip = s.get(start..end).unwrap_or(&[]);
+            store_row(acc, dst, step, |a, _, i| {
+                let t = rq.apply(a);
+                let t = if relu { t.max(0) } else { t };
+                t.saturating_add(skip.get(i).map_or(0, |&v| lut[v as u8 as usize]))
+            })
+        }
+    }
+}
+
+/// `dst[q · step] = clamp(f(acc[q], dst[q · step], q · step))` for every `q`.
+#[inline(always)]
+fn store_row(acc: &[i32], dst: &mut [i8], step: usize, f: impl Fn(i32, i8, usize) -> i32) {
+    if step == 1 {
+        for (i, (d, &a)) in dst.iter_mut().zip(acc).enumerate() {
+            *d = f(a, *d, i).clamp(-128, 127) as i8;
+        }
+    } else {
+        for (q, (d, &a)) in dst.iter_mut().step_by(step.max(1)).zip(acc).enumerate() {
+            *d = f(a, *d, q * step).clamp(-128, 127) as i8;
+        }
+    }
 }
 
 /// Where a row's outputs go: output `(o, q)` at `o · plane + base + q · step`.
@@ -114,9 +236,82 @@ pub(crate) struct RowIn {
     pub words: usize,
 }
 
+/// Most positions of one row (a row is at most [`MAX_ROW`] input columns).
+const MAX_POSITIONS: usize = MAX_ROW;
+
+/// Accumulators of one row of two channels (one spare entry: the unpaired last position's
+/// second result lands there).
+pub(crate) type RowAcc = [[i32; MAX_POSITIONS + 1]; 2];
+
+/// The line engine's scratch (expanded weights, line buffer, accumulator rows, about 20 KiB):
+/// a kernel call writes every word of it that it reads, so one scratch serves any number of
+/// calls and nothing is zeroed per call. The public kernels make one on the stack; the
+/// streamed model keeps one in its workspace and passes it to the `*_checked` kernels.
+pub struct LineScratch {
+    wbuf: [u32; WEIGHT_WORDS],
+    line: [u32; LINE_WORDS],
+    acc: RowAcc,
+    kept: KeptWeights,
+}
+
+/// Weights address and length, kernel, stride, input and output channels.
+type WeightsKey = (usize, usize, [usize; 3], [usize; 3], usize, usize);
+
+/// Which transposed-convolution weights `wbuf` still holds, while the caller allows keeping
+/// them ([`LineScratch::keep_weights`]).
+#[derive(Clone, Copy, Default)]
+struct KeptWeights {
+    on: bool,
+    key: Option<WeightsKey>,
+    /// Bit `fz · MAX_STRIDE + fy`: the phase's weights are laid out.
+    ready: u64,
+}
+
+impl Default for LineScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl LineScratch {
+    /// A zeroed scratch.
+    pub const fn new() -> Self {
+        Self {
+            wbuf: [0; WEIGHT_WORDS],
+            line: [0; LINE_WORDS],
+            acc: [[0; MAX_POSITIONS + 1]; 2],
+            kept: KeptWeights {
+                on: false,
+                key: None,
+                ready: 0,
+            },
+        }
+    }
+
+    /// From now on, a transposed convolution whose weights (same slice, kernel, stride and
+    /// channels) were laid out by an earlier call skips laying them out again, as long as
+    /// they fit the weight buffer beside each other phase by phase. For a caller that runs
+    /// one layer many times in pieces (the streamed model's u0, a plane per call): the
+    /// weights must not change until [`LineScratch::forget_weights`].
+    pub fn keep_weights(&mut self) {
+        self.kept = KeptWeights {
+            on: true,
+            key: None,
+            ready: 0,
+        };
+    }
+
+    /// Ends [`LineScratch::keep_weights`]: every call lays its weights out again.
+    pub fn forget_weights(&mut self) {
+        self.kept = KeptWeights::default();
+    }
+}
+
 /// One row of outputs for all channels: 2 channels × 2 positions per inner loop
-/// ([`crate::dsp::dot2x2`]). `weights` holds, per channel pair, the two channels' words
-/// interleaved (`rin.words` words per channel; an odd last channel is paired with itself).
+/// ([`crate::dsp::dot2x2`]) into a row of accumulators per channel, then each channel's row
+/// requantised and stored ([`requant_row`]). `weights` holds, per channel pair, the two
+/// channels' words interleaved (`rin.words` words per channel; an odd last channel is paired
+/// with itself).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn row<R: Apply>(
@@ -129,34 +324,35 @@ pub(crate) fn row<R: Apply>(
     skip: SkipLut<'_>,
     out: &mut [i8],
     rout: RowOut,
+    acc: &mut RowAcc,
 ) {
     let n = rin.words;
     let step = if n == 0 { 0 } else { rin.step };
     let oc = bias.len().min(rq.len());
-    let at = |o: usize, q: usize| o * rout.plane + rout.base + q * rout.step;
+    let positions = rin.positions.min(MAX_POSITIONS);
     let mut o = 0;
     while o < oc {
         let two = o + 1 < oc;
-        let w = &weights[o * n..(o + 2) * n];
+        let Some(w) = weights.get(o * n..(o + 2) * n) else {
+            return;
+        };
         let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
-        let mut q = 0;
-        while q < rin.positions {
-            let pair = q + 1 < rin.positions;
-            let x = &line[q * step..];
-            // The unpaired last position reuses its own window as the second one.
-            let acc = dot2x2(x, if pair { step } else { 0 }, w, n, [b0, b0, b1, b1]);
-            let [a00, a01, a10, a11] = acc;
-            store(out, at(o, q), rq[o].apply(a00), relu, skip);
-            if pair {
-                store(out, at(o, q + 1), rq[o].apply(a01), relu, skip);
-            }
-            if two {
-                store(out, at(o + 1, q), rq[o + 1].apply(a10), relu, skip);
-                if pair {
-                    store(out, at(o + 1, q + 1), rq[o + 1].apply(a11), relu, skip);
-                }
-            }
-            q += 2;
+        let [acc0, acc1] = &mut *acc;
+        if !crate::dsp::dot2x2_row(line, step, positions, w, n, [b0, b1], (acc0, acc1, 1)) {
+            return;
+        }
+        let at = |o: usize| o * rout.plane + rout.base;
+        requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
+        if two {
+            requant_row(
+                &acc1[..positions],
+                rq[o + 1],
+                relu,
+                skip,
+                out,
+                at(o + 1),
+                rout.step,
+            );
         }
         o += 2;
     }
@@ -188,8 +384,8 @@ fn pad_pairs(wbuf: &mut [u32], oc: usize, n: usize) {
 pub const MAX_ROW: usize = 256;
 static ZEROS: [i8; MAX_ROW] = [0; MAX_ROW];
 
-/// Fills the line: for each `v` in `0..vp`, `src(v)` is the input offset of the row that
-/// entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
+/// Fills the line: `src()`, called once for each `v` in `0..vp` in order, is the input
+/// offset of the row that entry `v` reads (`None` → all zeros); line columns `lo..hi` read that row from input
 /// column `in0` on, the other columns are 0 (padding).
 ///
 /// Word by word: entries `2k`, `2k + 1` of every column come from two rows read in step
@@ -202,7 +398,7 @@ fn fill(
     (lo, hi, in0): (usize, usize, usize),
     input: &[i8],
     off: i16,
-    src: impl Fn(usize) -> Option<usize>,
+    mut src: impl FnMut() -> Option<usize>,
 ) {
     let vw = vp / 2;
     if vw == 0 {
@@ -211,21 +407,25 @@ fn fill(
     let words = &mut line[..vw * cols];
     let len = hi.saturating_sub(lo).min(MAX_ROW);
     // Padding rows read zeros and add nothing (padding contributes 0, not the offset).
-    let row = |v: usize| match src(v) {
-        Some(base) => (&input[base + in0..base + in0 + len], off),
-        None => (&ZEROS[..len], 0),
-    };
+    #[inline(always)]
+    fn row(input: &[i8], base: Option<usize>, in0: usize, len: usize, off: i16) -> (&[i8], i16) {
+        match base {
+            Some(base) => (&input[base + in0..base + in0 + len], off),
+            None => (&ZEROS[..len], 0),
+        }
+    }
+    // Columns are `vw` consecutive words, so the padding columns left of `lo` and from
+    // `lo + len` on are two contiguous blocks, zeroed once instead of word by word.
+    let (head, tail) = (lo.min(cols), (lo + len).min(cols));
+    words[..head * vw].fill(0);
+    words[tail * vw..].fill(0);
+    if len == 0 {
+        return;
+    }
     for k in 0..vw {
-        let ((ra, oa), (rb, ob)) = (row(2 * k), row(2 * k + 1));
-        for c in 0..lo.min(cols) {
-            words[c * vw + k] = 0;
-        }
-        if len > 0 {
-            crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
-        }
-        for c in (lo + len).min(cols)..cols {
-            words[c * vw + k] = 0;
-        }
+        let (ra, oa) = row(input, src(), in0, len, off);
+        let (rb, ob) = row(input, src(), in0, len, off);
+        crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
     }
 }
 
@@ -238,12 +438,15 @@ pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
         && shape.in_size[2] <= MAX_ROW
         && vp * cols / 2 <= LINE_WORDS
         && 2 * kw * vp / 2 <= WEIGHT_WORDS
-        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= 2
+        && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= MAX_GROUPS
         && shape.out_channels <= MAX_FAST_CHANNELS
 }
 
+/// Most weight groups of a forward convolution: each further group refills the lines.
+const MAX_GROUPS: usize = 2;
+
 /// Output channels per weight group: an even number whose `n` words each fit
-/// [`WEIGHT_WORDS`]. More than two groups (m0) refill the lines too often to beat im2col.
+/// [`WEIGHT_WORDS`]. More than two groups refill the lines too often to beat im2col.
 fn conv_group(n: usize) -> usize {
     (WEIGHT_WORDS / n.max(1) / 2 * 2).max(2)
 }
@@ -257,6 +460,7 @@ pub(crate) fn conv<R: Apply>(
     params: &ConvParams<'_>,
     rq: &[R],
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
@@ -280,8 +484,12 @@ pub(crate) fn conv<R: Apply>(
             0
         }
     };
-    let mut wbuf = [0u32; WEIGHT_WORDS];
-    let mut line = [0u32; LINE_WORDS];
+    // The forward engine overwrites the weight buffer.
+    scratch.kept.key = None;
+    scratch.kept.ready = 0;
+    let LineScratch {
+        wbuf, line, acc, ..
+    } = scratch;
     let out_plane = od * oh * ow;
     let rin = RowIn {
         positions: ow,
@@ -300,20 +508,32 @@ pub(crate) fn conv<R: Apply>(
                 }
             }
         }
-        pad_pairs(&mut wbuf, g, n);
+        pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
-                fill(&mut line, vp, cols, span, input, off, |v| {
-                    if v >= v_len {
+                // v = (i, kz, ky), counted up without divisions.
+                let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
+                fill(line, vp, cols, span, input, off, || {
+                    let (vi, ii, zi, yi) = (v, i, kz, ky);
+                    v += 1;
+                    ky += 1;
+                    if ky == kh {
+                        ky = 0;
+                        kz += 1;
+                        if kz == kd {
+                            kz = 0;
+                            i += 1;
+                        }
+                    }
+                    if vi >= v_len {
                         return None;
                     }
-                    let (i, kz, ky) = (v / (kd * kh), (v / kh) % kd, v % kh);
-                    let iz = (z * sd + kz).checked_sub(pd).filter(|&a| a < id)?;
-                    let iy = (y * sh + ky).checked_sub(ph).filter(|&a| a < ih)?;
-                    Some(((i * id + iz) * ih + iy) * iw)
+                    let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+                    let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+                    Some(((ii * id + iz) * ih + iy) * iw)
                 });
                 row(
-                    &line,
+                    line,
                     rin,
                     &wbuf[..g.div_ceil(2) * 2 * n],
                     &params.bias[o0..o0 + g],
@@ -326,6 +546,7 @@ pub(crate) fn conv<R: Apply>(
                         base: o0 * out_plane + (z * oh + y) * ow,
                         step: 1,
                     },
+                    acc,
                 );
             }
         }
@@ -340,11 +561,12 @@ pub(crate) fn run_conv(
     params: &ConvParams<'_>,
     bound: i64,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let oc = shape.out_channels;
     match fast_requants(params.requant, bound) {
-        Some(f) => conv(shape, input, params, &f[..oc], output),
-        None => conv(shape, input, params, params.requant, output),
+        Some(f) => conv(shape, input, params, &f[..oc], output, scratch),
+        None => conv(shape, input, params, params.requant, output, scratch),
     }
 }
 
@@ -376,6 +598,7 @@ pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
         && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
         && shape.stride[2] <= MAX_STRIDE
+        && shape.out_size[2] <= MAX_POSITIONS
 }
 
 /// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
@@ -390,6 +613,7 @@ pub(crate) fn transposed<R: Apply>(
     rq: &[R],
     skip: SkipLut<'_>,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
@@ -412,21 +636,69 @@ pub(crate) fn transposed<R: Apply>(
         (iw as isize - ixlo).clamp(0, cols as isize) as usize,
     );
     let span = (lo, hi.max(lo), 0);
-    let mut wbuf = [0u32; WEIGHT_WORDS];
-    let mut line = [0u32; LINE_WORDS];
+    // Words of the weights of phase (fz, fy): every x phase's [O][c'][v] pairs.
+    let phase_words = |fz: usize, fy: usize| {
+        let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
+        (0..sw.min(MAX_STRIDE))
+            .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
+            .sum::<usize>()
+    };
+    // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
+    let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
+    let key = (
+        params.weights.as_ptr() as usize,
+        params.weights.len(),
+        shape.kernel,
+        shape.stride,
+        ic,
+        oc,
+    );
+    let kept = &mut scratch.kept;
+    let keep = kept.on && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
+    if !keep || kept.key != Some(key) {
+        kept.key = keep.then_some(key);
+        kept.ready = 0;
+    }
+    let mut phase_base = 0;
+    let LineScratch {
+        wbuf,
+        line,
+        acc,
+        kept,
+    } = scratch;
     for fz in 0..sd {
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), first(fz, sd, pd, od));
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), first(fy, sh, ph, oh));
+            let base = if keep { phase_base } else { 0 };
+            phase_base += phase_words(fz, fy);
             if nz * ny == 0 {
                 continue;
             }
+            let bit = 1u64 << ((fz * MAX_STRIDE + fy) % 64);
+            let laid_out = keep && kept.ready & bit != 0;
+            kept.ready |= if keep { bit } else { 0 };
             let v_len = ic * tz * ty;
             let vp = up4(v_len);
             let vw = vp / 2;
             // Per x phase: (first x, count, taps, weight offset, first line word).
             let mut xs = [(0usize, 0usize, 0usize, 0usize, 0usize); MAX_STRIDE];
-            let mut wofs = 0;
+            let mut wofs = base;
+            // Weight index of entry v = (i, a, b) for output channel 0 and column tap 0:
+            // ((i·oc·kd + kz)·kh + ky)·kw with kz = fz + a·sd, ky = fy + b·sh (counted up).
+            let taps_o = kd * kh * kw;
+            let mut vbase = [0usize; MAX_V];
+            let mut v = 0;
+            for i in 0..ic {
+                for a in 0..tz {
+                    for b in 0..ty {
+                        if let Some(slot) = vbase.get_mut(v) {
+                            *slot = i * oc * taps_o + ((fz + a * sd) * kh + fy + b * sh) * kw;
+                        }
+                        v += 1;
+                    }
+                }
+            }
             for (fx, x) in xs.iter_mut().enumerate().take(sw.min(MAX_STRIDE)) {
                 let (tx, (x0, nx)) = (phase_taps(kw, sw, fx), first(fx, sw, pw, ow));
                 // Output x reads input columns bx − (tx − 1) ..= bx, bx = (x + pw) / sw.
@@ -436,14 +708,16 @@ pub(crate) fn transposed<R: Apply>(
                 // Weights [O][c'][v] as i16 pairs: column tap c' reads input column
                 // bx − (tx − 1 − c').
                 let n = tx * vw;
+                if laid_out {
+                    wofs += oc.div_ceil(2) * 2 * n;
+                    continue;
+                }
                 let wv = |o: usize, cp: usize, v: usize| {
                     if v >= v_len {
                         return 0;
                     }
                     let kx = fx + (tx - 1 - cp) * sw;
-                    let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
-                    let (kz, ky) = (fz + a * sd, fy + b * sh);
-                    params.weights[(((i * oc + o) * kd + kz) * kh + ky) * kw + kx]
+                    params.weights[vbase[v] + o * taps_o + kx]
                 };
                 let wb = &mut wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n];
                 for o in 0..oc {
@@ -463,39 +737,61 @@ pub(crate) fn transposed<R: Apply>(
                 for qy in 0..ny {
                     let y = y0 + qy * sh;
                     let by = (y + ph) / sh;
-                    fill(&mut line, vp, cols, span, input, off, |v| {
-                        if v >= v_len {
+                    // v = (i, a, b), counted up without divisions.
+                    let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
+                    fill(line, vp, cols, span, input, off, || {
+                        let (vi, ii, ai, bi) = (v, i, a, b);
+                        v += 1;
+                        b += 1;
+                        if b == ty {
+                            b = 0;
+                            a += 1;
+                            if a == tz {
+                                a = 0;
+                                i += 1;
+                            }
+                        }
+                        if vi >= v_len {
                             return None;
                         }
-                        let (i, a, b) = (v / (tz * ty), (v / ty) % tz, v % ty);
-                        let iz = bz.checked_sub(a).filter(|&c| c < id)?;
-                        let iy = by.checked_sub(b).filter(|&c| c < ih)?;
-                        Some(((i * id + iz) * ih + iy) * iw)
+                        let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
+                        let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
+                        Some(((ii * id + iz) * ih + iy) * iw)
                     });
-                    for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
-                        if nx == 0 {
-                            continue;
+                    // Every x phase's dot products into one row of accumulators per
+                    // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
+                    // over the whole output row.
+                    let base = (z * oh + y) * ow;
+                    let mut o = 0;
+                    while o < oc {
+                        let two = o + 1 < oc;
+                        let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
+                        let [acc0, acc1] = &mut *acc;
+                        for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
+                            if nx == 0 {
+                                continue;
+                            }
+                            let n = tx * vw;
+                            let w = wbuf.get(wofs + o * n..wofs + (o + 2) * n).unwrap_or(&[]);
+                            let x = line.get(start..vw * cols).unwrap_or(&[]);
+                            let step = if n == 0 { 0 } else { vw };
+                            let accs = (&mut acc0[x0..], &mut acc1[x0..], sw);
+                            crate::dsp::dot2x2_row(x, step, nx, w, n, [b0, b1], accs);
                         }
-                        let n = tx * vw;
-                        row(
-                            &line[start..vw * cols],
-                            RowIn {
-                                positions: nx,
-                                step: vw,
-                                words: n,
-                            },
-                            &wbuf[wofs..wofs + oc.div_ceil(2) * 2 * n],
-                            params.bias,
-                            rq,
-                            params.relu,
-                            skip,
-                            output,
-                            RowOut {
-                                plane: out_plane,
-                                base: (z * oh + y) * ow + x0,
-                                step: sw,
-                            },
-                        );
+                        let at = |o: usize| o * out_plane + base;
+                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                        if two {
+                            requant_row(
+                                &acc1[..ow],
+                                rq[o + 1],
+                                params.relu,
+                                skip,
+                                output,
+                                at(o + 1),
+                                1,
+                            );
+                        }
+                        o += 2;
                     }
                 }
             }
@@ -511,12 +807,13 @@ pub(crate) fn run_transposed(
     bound: i64,
     skip: &Skip<'_>,
     output: &mut [i8],
+    scratch: &mut LineScratch,
 ) {
     let oc = shape.out_channels;
     let table = skip_table(skip);
     let lut = skip_lut(skip, &table);
     match fast_requants(params.requant, bound) {
-        Some(f) => transposed(shape, input, params, &f[..oc], lut, output),
-        None => transposed(shape, input, params, params.requant, lut, output),
+        Some(f) => transposed(shape, input, params, &f[..oc], lut, output, scratch),
+        None => transposed(shape, input, params, params.requant, lut, output, scratch),
     }
 }

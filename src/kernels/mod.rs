@@ -22,6 +22,8 @@ pub mod head_s8;
 mod line;
 pub mod soft_argmax_s8;
 
+pub use line::LineScratch;
+
 use crate::config::LayerShape;
 use crate::requant::Requant;
 
@@ -139,6 +141,9 @@ pub enum KernelError {
     },
     /// The fused head needs kernel == stride, no padding and one output channel.
     NotStreamableHead,
+    /// [`CheckedParams`] used with a kernel size, channel counts or direction other than the
+    /// ones their bound was verified for.
+    ParamsShape,
     /// `input_offset` outside `−MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET`.
     InputOffset {
         /// The offset given.
@@ -304,6 +309,80 @@ pub fn check_layer_bounds(
     Ok(worst)
 }
 
+/// Layer parameters whose worst-case accumulator ([`check_layer_bounds`]) has been verified
+/// once, for a kernel size, channel counts and direction: the `*_checked` kernel entries take
+/// them and only validate the shape and the activation lengths per call (the weight walk of
+/// the bound costs about as much as a small layer's arithmetic, and the streamed model calls
+/// its kernels thousands of times per depth map).
+#[derive(Clone, Copy, Debug)]
+pub struct CheckedParams<'a> {
+    params: ConvParams<'a>,
+    in_channels: usize,
+    out_channels: usize,
+    kernel: [usize; 3],
+    transposed: bool,
+    bound: i64,
+}
+
+impl<'a> CheckedParams<'a> {
+    /// Verifies `params` for convolutions (or, with `transposed`, transposed convolutions)
+    /// with `shape`'s kernel and channel counts.
+    pub fn new(
+        shape: &ConvShape,
+        params: ConvParams<'a>,
+        transposed: bool,
+    ) -> Result<Self, KernelError> {
+        let bound = check_layer_bounds(shape, &params, transposed)?;
+        Ok(Self::verified(shape, params, transposed, bound))
+    }
+
+    /// Parameters whose bound the caller has already established with
+    /// [`check_layer_bounds`] on the same `params`, kernel, channels and direction (the
+    /// model does it once in `Model::from_blob`, and its parameters are immutable).
+    pub(crate) fn verified(
+        shape: &ConvShape,
+        params: ConvParams<'a>,
+        transposed: bool,
+        bound: i64,
+    ) -> Self {
+        Self {
+            params,
+            in_channels: shape.in_channels,
+            out_channels: shape.out_channels,
+            kernel: shape.kernel,
+            transposed,
+            bound,
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ConvParams<'a> {
+        &self.params
+    }
+
+    /// The largest worst-case accumulator over the output channels.
+    pub fn bound(&self) -> i64 {
+        self.bound
+    }
+
+    /// Refuses a shape the parameters were not verified for.
+    pub(crate) fn check_shape(
+        &self,
+        shape: &ConvShape,
+        transposed: bool,
+    ) -> Result<(), KernelError> {
+        if shape.in_channels == self.in_channels
+            && shape.out_channels == self.out_channels
+            && shape.kernel == self.kernel
+            && transposed == self.transposed
+        {
+            Ok(())
+        } else {
+            Err(KernelError::ParamsShape)
+        }
+    }
+}
+
 /// Checks a per-tensor skip multiplier against int8 skip values.
 pub(crate) fn check_skip(skip: &Skip<'_>, output_len: usize) -> Result<(), KernelError> {
     let rq = match *skip {
@@ -367,6 +446,16 @@ pub(crate) fn check_conv(
     params: &ConvParams<'_>,
     output_len: usize,
 ) -> Result<i64, KernelError> {
+    check_conv_shape(shape, input_len, output_len)?;
+    check_layer_bounds(shape, params, false)
+}
+
+/// The shape and activation-length part of [`check_conv`] (no walk over the weights).
+pub(crate) fn check_conv_shape(
+    shape: &ConvShape,
+    input_len: usize,
+    output_len: usize,
+) -> Result<(), KernelError> {
     for axis in 0..3 {
         let (k, s, p) = (shape.kernel[axis], shape.stride[axis], shape.padding[axis]);
         if k == 0 || s == 0 {
@@ -387,8 +476,7 @@ pub(crate) fn check_conv(
             });
         }
     }
-    check_lengths(shape, input_len, output_len)?;
-    check_layer_bounds(shape, params, false)
+    check_lengths(shape, input_len, output_len)
 }
 
 /// Validates a transposed convolution's shape and every slice; returns the worst-case
@@ -399,6 +487,16 @@ pub(crate) fn check_conv_transpose(
     params: &ConvParams<'_>,
     output_len: usize,
 ) -> Result<i64, KernelError> {
+    check_conv_transpose_shape(shape, input_len, output_len)?;
+    check_layer_bounds(shape, params, true)
+}
+
+/// The shape and activation-length part of [`check_conv_transpose`].
+pub(crate) fn check_conv_transpose_shape(
+    shape: &ConvShape,
+    input_len: usize,
+    output_len: usize,
+) -> Result<(), KernelError> {
     for axis in 0..3 {
         let (k, s, p, op) = (
             shape.kernel[axis],
@@ -431,8 +529,7 @@ pub(crate) fn check_conv_transpose(
             });
         }
     }
-    check_lengths(shape, input_len, output_len)?;
-    check_layer_bounds(shape, params, true)
+    check_lengths(shape, input_len, output_len)
 }
 
 fn check_lengths(

@@ -69,6 +69,21 @@ pub(super) fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), 
     Ok(())
 }
 
+/// `⌊(t·2^16 + ⌊s/2⌋) / s⌋` for `0 < s < 2^24` in 32-bit divisions (Cortex-M `UDIV`; the u64
+/// division is a library call of about 100 instructions): the quotient, then the remainder
+/// long-divided a byte at a time (`r < s < 2^24`, so `r·2^8` fits), then the rounding half.
+#[inline(always)]
+fn round_div16(t: u32, s: u32) -> u64 {
+    let (q, r) = (t / s, t % s);
+    let a = r << 8;
+    let (d1, r1) = (a / s, a % s);
+    let b = r1 << 8;
+    let (d2, r2) = (b / s, b % s);
+    // r2 + ⌊s/2⌋ < 2s: the half adds at most one.
+    let carry = u64::from(r2 as u64 + (s / 2) as u64 >= s as u64);
+    ((q as u64) << 16) + ((d1 as u64) << 8) + d2 as u64 + carry
+}
+
 /// `S`, `T = Σ e_i·i`, the end weights `e_0`, `e_{R−1}` and `R` → depth (the contract's
 /// integer formula, end bins moved out by `K` and the result clamped to the window).
 #[inline(always)]
@@ -85,7 +100,10 @@ pub(super) fn depth_of(
     let s64 = s as u64;
     let k = p.end_offset as u64;
     let t = t as u64 + k * (s64 - first as u64 + last as u64);
-    let b16 = (t << 16).wrapping_add(s64 / 2) / s64.max(1);
+    let b16 = match u32::try_from(t) {
+        Ok(t) if s < 1 << 24 => round_div16(t, s.max(1)),
+        _ => (t << 16).wrapping_add(s64 / 2) / s64.max(1),
+    };
     let step = p.step16.to_bits() as u64;
     let base = p.r_min16.to_bits() as u64;
     let d = base + ((b16 * step + (1 << 15)) >> 16);
@@ -400,13 +418,8 @@ fn head_by_columns<R: Apply>(
 /// Soft-argmax of one ray whose maximum logit `m` is known (the contract's sums).
 #[inline(always)]
 pub(super) fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
-    let (mut s, mut t) = (0u32, 0u32);
-    for (i, &q) in logits.iter().enumerate() {
-        // m ≥ q, so m − q is in 0..=255 and the u8 cast is exact.
-        let e = p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
-        s += e;
-        t += e * i as u32;
-    }
+    // m ≥ q, so m − q is in 0..=255 and the table index exact.
+    let (s, t) = crate::dsp::exp_sums(logits, m, p.exp);
     let end = |q: i8| p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
     depth_of(
         s,
@@ -460,6 +473,35 @@ mod tests {
     use super::super::testutil::{exp_table, params, soft_params, Rng};
     use super::super::Skip;
     use super::*;
+
+    #[test]
+    fn round_div16_is_the_u64_division() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let edges = [
+            (0, 1),
+            (u32::MAX, 1),
+            (u32::MAX, (1 << 24) - 1),
+            (1, 3),
+            (5, 2),
+        ];
+        for i in 0..100_000 {
+            let (t, s) = match edges.get(i) {
+                Some(&e) => e,
+                None => (
+                    next() as u32 >> (next() % 32),
+                    1 + (next() as u32 % ((1 << 24) - 1)),
+                ),
+            };
+            let want = ((t as u64) << 16).wrapping_add(s as u64 / 2) / s as u64;
+            assert_eq!(round_div16(t, s), want, "t {t} s {s}");
+        }
+    }
     use crate::config;
     use std::vec;
 
