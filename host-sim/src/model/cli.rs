@@ -152,7 +152,9 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
             .with_context(|| format!("{}/manifest.json has no `{k}`", out.display()))
     };
     ensure!(
-        field("seed")? == seed && field("batch")? as usize == batch && field("views")? as usize == views,
+        field("seed")? == seed
+            && field("batch")? as usize == batch
+            && field("views")? as usize == views,
         "the run in {} was made with seed {}, batch {}, views {}: pass the same settings",
         out.display(),
         field("seed")?,
