@@ -1038,6 +1038,43 @@ impl<'a> Model<'a> {
         self.depth_from_features_probed(reference, sources, ws, depth, |_, _| {})
     }
 
+    /// The front depth map of a view set, streamed: the one place that turns u8 polar images
+    /// (`views[0]` the reference, `views[1..]` the sources, view k rolled by k × the baseline)
+    /// into depth. `features` receives each view's features (`views.len() ×
+    /// config::FEATURE_LEN`, view by view) so callers can check or cache them. A single view
+    /// is its own source (the single-view baseline).
+    pub fn depth(
+        &self,
+        views: &[&[u8]],
+        features: &mut [i8],
+        ws: &mut Workspace,
+        depth: &mut [U16F16],
+    ) -> Result<(), Error> {
+        if views.is_empty() || views.len() > config::MAX_VIEWS {
+            return Err(Error::SourceCount(views.len().saturating_sub(1)));
+        }
+        expect_len(views.len() * config::FEATURE_LEN, features.len())?;
+        for (view, f) in views
+            .iter()
+            .zip(features.chunks_exact_mut(config::FEATURE_LEN))
+        {
+            self.features(view, ws, f)?;
+        }
+        let mut chunks = features.chunks_exact(config::FEATURE_LEN);
+        let reference = chunks.next().unwrap_or(&[]);
+        let mut sources: [&[i8]; config::MAX_VIEWS - 1] = [&[]; config::MAX_VIEWS - 1];
+        let mut n = 0;
+        for (s, f) in sources.iter_mut().zip(chunks) {
+            *s = f;
+            n += 1;
+        }
+        if n == 0 {
+            sources[0] = reference;
+            n = 1;
+        }
+        self.depth_from_features(reference, &sources[..n], ws, depth)
+    }
+
     /// d1 into its UNet region, [`COST_ROW_CHUNKS`] row tiles at a time: per tile, the window
     /// of `kd` cost-volume planes slides along the planes (the planes two output planes share
     /// are kept), and new planes are computed channel by channel for just the tile's rows.

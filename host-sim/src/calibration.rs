@@ -100,7 +100,7 @@ pub fn score(
         .map_init(
             || Box::new(epssn::model::Workspace::new()),
             |ws, s| -> Result<f64> {
-                let d = crate::model::cli::int8_depth(&model, &s.views, ws)?;
+                let d = crate::int8::depth_metres(&model, &s.views, ws)?;
                 let (mut sum, mut n) = (0f64, 0usize);
                 for ((a, b), &m) in d.iter().zip(&s.float_depth).zip(&s.mask) {
                     if m {

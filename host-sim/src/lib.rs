@@ -13,6 +13,7 @@ pub mod figure;
 pub mod floatref;
 pub mod groundtruth;
 pub mod inspect;
+pub mod int8;
 pub mod intref;
 pub mod metrics;
 pub mod model;

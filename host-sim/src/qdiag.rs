@@ -171,8 +171,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
                 rows.push(diff_and_mae(&t.depth, &float_depth, &s.depth, &mask)?);
             }
             let mut ws = Box::new(epssn::model::Workspace::new());
-            let owned: Vec<Vec<u8>> = refs.iter().map(|r| r.to_vec()).collect();
-            let dq = crate::model::cli::int8_depth(&model, &owned, &mut ws)?;
+            let dq = crate::int8::depth_metres(&model, &refs, &mut ws)?;
             rows.push(diff_and_mae(&dq, &float_depth, &s.depth, &mask)?);
             Ok(rows)
         })

@@ -261,38 +261,31 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
     std::fs::create_dir_all(&args.out)?;
 
-    // Per-frame caches: each frame's polar image and int8 features are computed once.
+    // Each frame's polar image is computed once; the library computes each group's features
+    // and depth in one call and hands the features back for the bit-exactness check.
     let mut ws = Box::new(Workspace::new());
     let mut images: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
-    let mut features: BTreeMap<usize, Vec<i8>> = BTreeMap::new();
     for &f in groups.iter().flatten() {
-        if features.contains_key(&f) {
-            continue;
+        if !images.contains_key(&f) {
+            images.insert(f, polar::frame_to_polar(&reader.frame(f)?)?);
         }
-        let img = polar::frame_to_polar(&reader.frame(f)?)?;
-        let mut feat = vec![0i8; config::FEATURE_LEN];
-        model
-            .features(&img, &mut ws, &mut feat)
-            .map_err(|e| anyhow::anyhow!("features of frame {f}: {e:?}"))?;
-        images.insert(f, img);
-        features.insert(f, feat);
     }
 
     let mut details = Vec::new();
     for group in &groups {
         let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
-        let sources: Vec<&[i8]> = group[1..].iter().map(|f| features[f].as_slice()).collect();
+        let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
         let mut depth_q = vec![U16F16::ZERO; config::DEPTH_LEN];
         model
-            .depth_from_features(&features[&group[0]], &sources, &mut ws, &mut depth_q)
+            .depth(&views, &mut features, &mut ws, &mut depth_q)
             .map_err(|e| anyhow::anyhow!("depth of frames {group:?}: {e:?}"))?;
         let reference = reference_model::run(&bundle.blob, &views)?;
         let bits: Vec<u32> = depth_q.iter().map(|d| d.to_bits()).collect();
         let bit_exact = bits == reference.depth
-            && group
-                .iter()
+            && features
+                .chunks_exact(config::FEATURE_LEN)
                 .zip(&reference.features)
-                .all(|(f, layers)| layers.values().last().is_some_and(|v| v == &features[f]));
+                .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
         let depth_int8: Vec<f32> = depth_q.iter().map(|d| d.to_num::<f32>()).collect();
         let depth_float = floatref::run(&bundle.float, &views)?.depth;
         let int8_vs_float_mae = 1000.0

@@ -201,7 +201,7 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
     let mut ws = Box::new(Workspace::new());
     let mut cache = Box::new(FeatureCache::new());
     let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
-    let mut out = Vec::new();
+    let mut out: Vec<HostFrame> = Vec::new();
     for i in 0..n {
         let frame = reader.frame(i)?;
         let h = &frame.header;
@@ -220,15 +220,22 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
         let expected = match cache.find(&newest, config::VIEWS) {
             Some(set) => {
                 let reference = set.reference().context("empty view set")?;
-                let r = cache.features(reference).context("reference features")?;
-                let srcs: Vec<&[i8]> = set
-                    .sources()
-                    .iter()
-                    .filter_map(|f| cache.features(f).map(|x| &x[..]))
+                // Frame seq s is frame s − 1 of the recording: this one or one already pushed.
+                let image_of = |seq: u32| -> &[u8] {
+                    if seq == seq {
+                        &image
+                    } else {
+                        &out[seq as usize - 1].image
+                    }
+                };
+                let views: Vec<&[u8]> = core::iter::once(reference.seq)
+                    .chain(set.sources().iter().map(|f| f.seq))
+                    .map(image_of)
                     .collect();
+                let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
                 let mut depth = vec![U16F16::ZERO; config::DEPTH_LEN];
                 model
-                    .depth_from_features(r, &srcs, &mut ws, &mut depth)
+                    .depth(&views, &mut features, &mut ws, &mut depth)
                     .map_err(|e| anyhow!("host depth of frame {i}: {e:?}"))?;
                 Some((
                     reference.seq,

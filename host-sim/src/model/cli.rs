@@ -418,35 +418,6 @@ fn nan_if_none((m, s): (Option<f64>, Option<f64>)) -> (f64, f64) {
     (m.unwrap_or(f64::NAN), s.unwrap_or(f64::NAN))
 }
 
-/// The int8 library's depth map (metres) for one sample's views; one view is fed as its own
-/// source, as the float model's single-view ablation does.
-pub fn int8_depth(
-    model: &epssn::model::Model<'_>,
-    views: &[Vec<u8>],
-    ws: &mut epssn::model::Workspace,
-) -> Result<Vec<f32>> {
-    let feats = views
-        .iter()
-        .map(|v| {
-            let mut f = vec![0i8; epssn::config::FEATURE_LEN];
-            model
-                .features(v, ws, &mut f)
-                .map_err(|e| anyhow::anyhow!("int8 features: {e:?}"))?;
-            Ok(f)
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let sources: Vec<&[i8]> = if feats.len() == 1 {
-        vec![&feats[0]]
-    } else {
-        feats[1..].iter().map(|f| f.as_slice()).collect()
-    };
-    let mut depth = vec![fixed::types::U16F16::ZERO; epssn::config::DEPTH_LEN];
-    model
-        .depth_from_features(&feats[0], &sources, ws, &mut depth)
-        .map_err(|e| anyhow::anyhow!("int8 depth: {e:?}"))?;
-    Ok(depth.iter().map(|d| d.to_num::<f32>()).collect())
-}
-
 /// Runs `host-sim eval`.
 pub fn eval(args: &EvalArgs) -> Result<()> {
     let weights = match &args.weights {
@@ -504,7 +475,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         };
         for (s, d) in chunk.iter().zip(float_maps) {
             if let Some(q) = &int8 {
-                let dq = int8_depth(q, &s.views, &mut ws)?;
+                let dq = crate::int8::depth_metres(q, &s.views, &mut ws)?;
                 let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
                 int8_m.push(crate::metrics::evaluate(&dq, &s.depth, &mask)?);
                 let diff: f64 = dq.iter().zip(&d).map(|(a, b)| (a - b).abs() as f64).sum();
