@@ -1,0 +1,39 @@
+//! Loading the model spec (`weights/*.json`) and everything derived from it at run time.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use epssn::grids::ModelGrids;
+use epssn::spec::ModelSpec;
+
+use crate::beams;
+
+/// The spec the library was built from, relative to the repository root.
+pub const DEFAULT_SPEC: &str =
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../../../weights/epssn-s.json");
+
+/// Parses a model spec file.
+pub fn load_spec(path: &Path) -> Result<ModelSpec> {
+    let bytes =
+        std::fs::read(path).with_context(|| format!("reading model spec {}", path.display()))?;
+    serde_json::from_slice(&bytes).with_context(|| format!("parsing model spec {}", path.display()))
+}
+
+/// CRC-32 of the spec file's bytes, as weight blobs and manifests record it.
+pub fn spec_hash(path: &Path) -> Result<u32> {
+    let bytes =
+        std::fs::read(path).with_context(|| format!("reading model spec {}", path.display()))?;
+    Ok(epssn::crc32::crc32(&bytes))
+}
+
+/// The grids of `spec`, through the library's one derivation, with the spec's beam table.
+pub fn grids(spec: &ModelSpec) -> Result<ModelGrids> {
+    let table = beams::table_by_name(spec.sonar.beam_table.as_str())
+        .with_context(|| format!("beam table {}", spec.sonar.beam_table.as_str()))?;
+    ModelGrids::derive(spec, &table.centre_deg).map_err(|e| {
+        anyhow::anyhow!(
+            "model spec {} does not give valid grids: {e:?}",
+            spec.name.as_str()
+        )
+    })
+}
