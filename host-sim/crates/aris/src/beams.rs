@@ -80,43 +80,7 @@ pub enum BeamTableError {
     Data(String),
 }
 
-/// One beam-angle table: per beam, the centre and the two edges, in degrees.
-///
-/// Beam 0 is the right-most beam (negative angle); the centres ascend with the beam index.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BeamTable {
-    /// Table name as in the SDK, e.g. `ARIS3000_128`.
-    pub name: &'static str,
-    /// Beam centre angles, degrees, ascending.
-    pub centre_deg: Vec<f64>,
-    /// Left edge of each beam, degrees (as published).
-    pub left_deg: Vec<f64>,
-    /// Right edge of each beam, degrees (as published).
-    pub right_deg: Vec<f64>,
-}
-
-impl BeamTable {
-    /// Number of beams.
-    pub fn beams(&self) -> usize {
-        self.centre_deg.len()
-    }
-
-    /// Beam centres in radians, ascending (beam 0 first, right-most, negative).
-    pub fn centres_rad(&self) -> Vec<f64> {
-        self.centre_deg
-            .iter()
-            .map(|&d| epssn::geometry::deg_to_rad(d))
-            .collect()
-    }
-
-    /// (first, last) beam centre, degrees.
-    pub fn centre_span_deg(&self) -> (f64, f64) {
-        (
-            self.centre_deg.first().copied().unwrap_or(f64::NAN),
-            self.centre_deg.last().copied().unwrap_or(f64::NAN),
-        )
-    }
-}
+pub use epssn_spec::load::BeamTable;
 
 /// The embedded tables: (name, CSV text).
 const SOURCES: [(&str, &str); 6] = [
@@ -146,60 +110,9 @@ const SOURCES: [(&str, &str); 6] = [
     ),
 ];
 
-/// Parses one table's CSV (`beam,center_deg,left_deg,right_deg` with a header line).
-///
-/// Checks that beams are numbered 0, 1, 2, … and that the centres strictly ascend, because
-/// the resampler relies on both.
-pub fn parse_table(name: &'static str, csv: &str) -> Result<BeamTable, String> {
-    let mut table = BeamTable {
-        name,
-        centre_deg: Vec::new(),
-        left_deg: Vec::new(),
-        right_deg: Vec::new(),
-    };
-    for (line_no, line) in csv.lines().enumerate().skip(1) {
-        let line = line.trim();
-        if line.is_empty() {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        if fields.len() != 4 {
-            return Err(format!(
-                "{name}: line {}: expected 4 fields, found {}",
-                line_no + 1,
-                fields.len()
-            ));
-        }
-        let beam: usize = fields[0]
-            .parse()
-            .map_err(|e| format!("{name}: line {}: beam index: {e}", line_no + 1))?;
-        if beam != table.centre_deg.len() {
-            return Err(format!(
-                "{name}: line {}: beam {beam} out of order (expected {})",
-                line_no + 1,
-                table.centre_deg.len()
-            ));
-        }
-        let mut angles = [0.0f64; 3];
-        for (slot, text) in angles.iter_mut().zip(&fields[1..]) {
-            *slot = text
-                .parse()
-                .map_err(|e| format!("{name}: line {}: angle {text:?}: {e}", line_no + 1))?;
-            if !slot.is_finite() {
-                return Err(format!("{name}: line {}: angle is not finite", line_no + 1));
-            }
-        }
-        table.centre_deg.push(angles[0]);
-        table.left_deg.push(angles[1]);
-        table.right_deg.push(angles[2]);
-    }
-    if table.centre_deg.len() < 2 {
-        return Err(format!("{name}: fewer than two beams"));
-    }
-    if table.centre_deg.windows(2).any(|w| w[1] <= w[0]) {
-        return Err(format!("{name}: beam centres do not strictly ascend"));
-    }
-    Ok(table)
+/// Parses one table's CSV through the one beam-table parser ([`epssn_spec::load`]).
+pub fn parse_table(name: &str, csv: &str) -> Result<BeamTable, String> {
+    epssn_spec::load::parse_beam_table(name, csv)
 }
 
 /// All embedded tables, parsed once.

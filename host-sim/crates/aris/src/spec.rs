@@ -1,8 +1,9 @@
-//! Loading the model spec (`weights/*.json`) and everything derived from it at run time.
+//! The model spec (`weights/*.json`) at run time, through the one loader
+//! ([`epssn_spec::load`]), and everything derived from it.
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::{anyhow, Context, Result};
 use epssn::grids::ModelGrids;
 use epssn::spec::ModelSpec;
 
@@ -14,16 +15,16 @@ pub const DEFAULT_SPEC: &str =
 
 /// Parses a model spec file.
 pub fn load_spec(path: &Path) -> Result<ModelSpec> {
-    let bytes =
-        std::fs::read(path).with_context(|| format!("reading model spec {}", path.display()))?;
-    serde_json::from_slice(&bytes).with_context(|| format!("parsing model spec {}", path.display()))
+    Ok(epssn_spec::load::load_spec(path)
+        .map_err(|e| anyhow!(e))?
+        .spec)
 }
 
 /// CRC-32 of the spec file's bytes, as weight blobs and manifests record it.
 pub fn spec_hash(path: &Path) -> Result<u32> {
-    let bytes =
-        std::fs::read(path).with_context(|| format!("reading model spec {}", path.display()))?;
-    Ok(epssn::crc32::crc32(&bytes))
+    Ok(epssn_spec::load::load_spec(path)
+        .map_err(|e| anyhow!(e))?
+        .hash)
 }
 
 /// The grids of `spec`, through the library's one derivation, with the spec's beam table.
@@ -31,7 +32,7 @@ pub fn grids(spec: &ModelSpec) -> Result<ModelGrids> {
     let table = beams::table_by_name(spec.sonar.beam_table.as_str())
         .with_context(|| format!("beam table {}", spec.sonar.beam_table.as_str()))?;
     ModelGrids::derive(spec, &table.centre_deg).map_err(|e| {
-        anyhow::anyhow!(
+        anyhow!(
             "model spec {} does not give valid grids: {e:?}",
             spec.name.as_str()
         )

@@ -72,33 +72,19 @@ pub const WEIGHTS_FILE: &str = "model.safetensors";
 /// File name of the copy of the model spec inside a weights directory.
 pub const SPEC_FILE: &str = "spec.json";
 
-/// Parses a model spec from JSON bytes.
+/// Parses a model spec from JSON bytes (the one spec parser, [`epssn_spec::load`]).
 pub fn parse_spec(bytes: &[u8]) -> Result<ModelSpec> {
-    serde_json::from_slice(bytes).context("model spec is not valid")
+    epssn_spec::load::parse_spec(bytes).map_err(|e| anyhow!(e))
 }
 
-/// Beam centres (degrees, beam 0 first) of the spec's beam table.
-///
-/// The compiled configuration's table comes from `epssn::config`; any other table is read from
-/// the bundled `data/aris-beam-widths/<table>.csv`.
+/// Beam centres (degrees, beam 0 first) of the spec's beam table, from the one beam-table
+/// parser ([`epssn_aris::beams`]).
 pub fn beam_centres_deg(spec: &ModelSpec) -> Result<Vec<f64>> {
-    if spec.sonar.beam_table.as_str() == epssn::config::BEAM_TABLE {
-        return Ok(epssn::config::BEAM_CENTRES_DEG.to_vec());
-    }
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../data/aris-beam-widths")
-        .join(format!("{}.csv", spec.sonar.beam_table.as_str()));
-    let text = std::fs::read_to_string(&path)
-        .with_context(|| format!("cannot read beam table {}", path.display()))?;
-    let mut centres = Vec::new();
-    for line in text.lines().skip(1).filter(|l| !l.trim().is_empty()) {
-        let field = line
-            .split(',')
-            .nth(1)
-            .ok_or_else(|| anyhow!("{}: bad line {line:?}", path.display()))?;
-        centres.push(field.trim().parse::<f64>()?);
-    }
-    Ok(centres)
+    let name = spec.sonar.beam_table.as_str();
+    Ok(epssn_aris::beams::table_by_name(name)
+        .with_context(|| format!("beam table {name}"))?
+        .centre_deg
+        .clone())
 }
 
 /// A named intermediate activation of one forward pass.
@@ -762,6 +748,46 @@ pub fn images_tensor(images: &[&[u8]], r: usize, w: usize, device: &Device) -> R
     ))
 }
 
+/// The repository root (the spec files of manifests are relative to it).
+fn repo_root() -> &'static Path {
+    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../.."))
+}
+
+/// The model spec of a weights folder; see [`FloatModel::load`].
+pub fn folder_spec(dir: &Path) -> Result<ModelSpec> {
+    let manifest = dir.join("manifest.json");
+    let recorded = match std::fs::read(&manifest) {
+        Ok(bytes) => {
+            let v: serde_json::Value = serde_json::from_slice(&bytes)
+                .with_context(|| format!("parsing {}", manifest.display()))?;
+            let hash = v["spec_crc32"]
+                .as_str()
+                .and_then(|h| u32::from_str_radix(h.trim_start_matches("0x"), 16).ok());
+            hash.map(|h| (v["spec_file"].as_str().map(str::to_owned), h))
+        }
+        Err(_) => None,
+    };
+    if let Some((Some(file), hash)) = &recorded {
+        let path = repo_root().join(file);
+        if let Ok(loaded) = epssn_spec::load::load_spec(&path) {
+            if loaded.hash == *hash {
+                return Ok(loaded.spec);
+            }
+        }
+    }
+    let own = dir.join(SPEC_FILE);
+    let loaded = epssn_spec::load::load_spec(&own).map_err(|e| anyhow!(e))?;
+    if let Some((_, hash)) = recorded {
+        ensure!(
+            loaded.hash == hash,
+            "{}: CRC-32 {:#010x}, the manifest records {hash:#010x}",
+            own.display(),
+            loaded.hash
+        );
+    }
+    Ok(loaded.spec)
+}
+
 /// The float model for inference on the plain flex CPU device (batch norm uses its running
 /// statistics).
 pub struct FloatModel {
@@ -772,10 +798,13 @@ pub struct FloatModel {
 
 impl FloatModel {
     /// Loads `dir/spec.json` and `dir/model.safetensors`.
+    ///
+    /// The spec is the one the folder's `manifest.json` names (`spec_file`, relative to the
+    /// repository, normally `weights/epssn-s.json`) when that file's CRC-32 is the recorded
+    /// `spec_crc32`; otherwise (a model of an older spec, a folder without manifest) the
+    /// folder's own `spec.json`, which must then match the recorded hash if there is one.
     pub fn load(dir: &Path) -> Result<Self> {
-        let spec_bytes = std::fs::read(dir.join(SPEC_FILE))
-            .with_context(|| format!("cannot read {}", dir.join(SPEC_FILE).display()))?;
-        let spec = parse_spec(&spec_bytes)?;
+        let spec = folder_spec(dir)?;
         let tensors = load_safetensors(&dir.join(WEIGHTS_FILE))?;
         Self::from_tensors(&spec, &tensors)
     }
