@@ -141,7 +141,7 @@ pub struct SimulateArgs {
     /// Dataset seed.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output root; samples go to OUT/<split>/<000000>/.
+    /// Output root; samples go to `OUT/<split>/<000000>/`.
     #[arg(long)]
     pub out: PathBuf,
     /// Split.
