@@ -46,3 +46,4 @@ pub mod link;
 pub mod model;
 pub mod pairing;
 pub mod requant;
+pub mod server;

@@ -1,15 +1,26 @@
-//! The link server: decodes messages from any `embedded_io` byte stream, pairs frames by roll,
-//! answers with depth maps, status and errors. Board-independent: the UART, the busy LED and
-//! the clock come in as traits and closures.
+//! The link server the firmware runs: decodes messages from any `embedded_io` byte stream,
+//! pairs frames by roll, answers with depth maps, status and errors (docs/LINK.md).
+//! Board-independent: the UART comes in as `embedded_io` traits, the busy LED as an
+//! `embedded_hal` [`OutputPin`], the clock and the stack probe as closures, so host tests drive
+//! it with a mock serial line and pin.
 
-use embedded_hal::digital::OutputPin;
-use embedded_io::{Read, ReadReady, Write};
-use epssn::config;
-use epssn::link::{
+#[cfg(feature = "defmt")]
+macro_rules! log {
+    ($($t:tt)*) => { defmt::info!($($t)*) };
+}
+#[cfg(not(feature = "defmt"))]
+macro_rules! log {
+    ($($t:tt)*) => {{}};
+}
+
+use crate::config;
+use crate::link::{
     self, encode, error_text, DecodeError, Decoder, DepthData, ErrorCode, Message, Status,
 };
-use epssn::model::{Model, Workspace};
-use epssn::pairing::FeatureCache;
+use crate::model::{Model, Workspace};
+use crate::pairing::FeatureCache;
+use embedded_hal::digital::OutputPin;
+use embedded_io::{Read, ReadReady, Write};
 use fixed::types::U16F16;
 
 /// What the server works with, all in static memory.
@@ -150,7 +161,7 @@ impl<'a> Server<'a> {
                     .model
                     .depth_from_features(ref_feats, &sources, self.workspace, &mut self.depth[..])
                     .map(|()| (reference, source_seqs)),
-                None => Err(epssn::model::Error::SourceCount(0)),
+                None => Err(crate::model::Error::SourceCount(0)),
             }
         };
         let ticks = (self.now)().wrapping_sub(start);
