@@ -1,19 +1,10 @@
 //! Generates, from the model spec in `weights/`, everything the library needs at compile time:
 //! size constants, the sonar's angle grids and the warp tables for the fixed roll baseline.
-//! The geometry, spec types and CRC are the library's own source files, compiled here too, so
-//! build-time tables and run-time code cannot disagree.
+//! The spec types, the spec loader, the beam-table parser and the geometry are `epssn-spec`'s,
+//! the very crate the library runs, so build-time tables and run-time code cannot disagree.
 
-#![allow(dead_code)]
-
-#[path = "src/crc32.rs"]
-mod crc32;
-#[path = "src/geometry.rs"]
-mod geometry;
-#[path = "src/grids.rs"]
-mod grids;
-#[path = "src/spec.rs"]
-mod spec;
-
+use epssn_spec::load::{beam_table_path, load_beam_table, load_spec};
+use epssn_spec::{grids, spec};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -24,44 +15,19 @@ fn main() {
         .unwrap_or_else(|_| root.join("weights/epssn-s.json"));
     println!("cargo:rerun-if-changed={}", spec_path.display());
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
-    println!("cargo:rerun-if-changed=src/geometry.rs");
-    println!("cargo:rerun-if-changed=src/spec.rs");
-    println!("cargo:rerun-if-changed=src/grids.rs");
-    let spec_bytes = std::fs::read(&spec_path)
-        .unwrap_or_else(|e| panic!("cannot read model spec {}: {e}", spec_path.display()));
-    let spec: spec::ModelSpec = serde_json::from_slice(&spec_bytes)
-        .unwrap_or_else(|e| panic!("model spec {} is invalid: {e}", spec_path.display()));
-    let table_path = root
-        .join("data/aris-beam-widths")
-        .join(format!("{}.csv", spec.sonar.beam_table.as_str()));
-    println!("cargo:rerun-if-changed={}", table_path.display());
-    let beam_deg = read_beam_centres(&table_path);
-    let out = generate(&spec, &beam_deg, crc32::crc32(&spec_bytes));
+    let loaded = load_spec(&spec_path).unwrap_or_else(|e| panic!("{e}"));
+    let spec = loaded.spec;
+    let table = spec.sonar.beam_table.as_str();
+    println!(
+        "cargo:rerun-if-changed={}",
+        beam_table_path(&root, table).display()
+    );
+    let beam_deg = load_beam_table(&root, table)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .centre_deg;
+    let out = generate(&spec, &beam_deg, loaded.hash);
     let out_path = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("config.rs");
     std::fs::write(&out_path, out).unwrap();
-}
-
-fn read_beam_centres(path: &std::path::Path) -> Vec<f64> {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("cannot read beam table {}: {e}", path.display()));
-    let mut centres = Vec::new();
-    for (n, line) in text.lines().enumerate().skip(1) {
-        let line = line.trim();
-        if line.is_empty() {
-            continue;
-        }
-        let fields: Vec<&str> = line.split(',').collect();
-        let beam: usize = fields[0].trim().parse().unwrap();
-        assert_eq!(
-            beam,
-            centres.len(),
-            "{}: beam out of order on line {}",
-            path.display(),
-            n + 1
-        );
-        centres.push(fields[1].trim().parse::<f64>().unwrap());
-    }
-    centres
 }
 
 fn check(cond: bool, what: &str) {

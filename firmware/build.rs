@@ -64,13 +64,10 @@ fn main() {
     let mut ws = Box::new(Workspace::new());
     let reference = synthetic_image(1);
     let source = synthetic_image(2);
-    let mut f_ref = vec![0i8; config::FEATURE_LEN];
-    let mut f_src = vec![0i8; config::FEATURE_LEN];
-    model.features(&reference, &mut ws, &mut f_ref).unwrap();
-    model.features(&source, &mut ws, &mut f_src).unwrap();
+    let mut features = vec![0i8; 2 * config::FEATURE_LEN];
     let mut depth = vec![fixed::types::U16F16::ZERO; config::DEPTH_LEN];
     model
-        .depth_from_features(&f_ref, &[&f_src], &mut ws, &mut depth)
+        .depth(&[&reference, &source], &mut features, &mut ws, &mut depth)
         .unwrap();
     write(&out, "selftest_reference.bin", &reference);
     write(&out, "selftest_source.bin", &source);

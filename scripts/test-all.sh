@@ -41,8 +41,12 @@ step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
 step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"
 (cd qemu-check && cargo fmt -- --check && cargo clippy --release -- -D warnings && timeout 600 cargo run --release)
 
+step "documentation (workspace, warnings denied)"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
+
 step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
-cargo run -p host-sim -- sil --json   # dev profile: dependencies are opt-level 3, no second burn build
+# The binary `cargo test` just built for the integration tests: no second build of anything.
+"$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim" sil --json

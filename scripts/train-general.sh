@@ -10,7 +10,7 @@
 # quantiser, hold every scene). Training never sees a test split; an interrupted run continues
 # with the same command (--resume).
 set -euo pipefail
-train_n=$1 test_n=$2 epochs=$3 root=${4:-/tmp/epssn-data} spec=${5:-weights/epssn-s.json}
+train_n=$1 test_n=$2 epochs=$3 root=${4:-out/epssn-data} spec=${5:-weights/epssn-s.json}
 val_n=${VAL_PER_SCENE:-100}
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping

@@ -6,7 +6,7 @@
 # calibration uses 64 training samples. Re-running with the same arguments gives the same weights
 # (burn's flex backend is deterministic); an interrupted training continues with --resume.
 set -euo pipefail
-scene=$1 train_n=$2 test_n=$3 epochs=$4 test_views=${5:-2} root=${6:-/tmp/epssn-data}
+scene=$1 train_n=$2 test_n=$3 epochs=$4 test_views=${5:-2} root=${6:-out/epssn-data}
 data=$root/$scene
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 cd "$(dirname "$0")/.."

@@ -7,8 +7,9 @@
 //! which it first meets a surface.
 //!
 //! Every size comes from the model spec in `weights/` through `build.rs` ([`config`]); the
-//! sonar geometry lives in one module ([`geometry`]) that the build script, the host tools and
-//! the firmware share.
+//! spec types and the sonar geometry live in one crate, `epssn-spec` (re-exported as [`spec`],
+//! [`geometry`], [`grids`], [`crc32`]), that the build script, the host tools and the firmware
+//! share.
 //!
 //! ```
 //! use epssn::{config, geometry};
@@ -33,15 +34,16 @@
 #[cfg(test)]
 extern crate std;
 
+// The spec, the geometry, the grids and the CRC live in `epssn-spec` (shared with the build
+// script and the host tools); re-exported here so `epssn::spec` and `epssn::geometry` stay.
+pub use epssn_spec::{crc32, geometry, grids, spec};
+
 pub mod blob;
 pub mod config;
-pub mod crc32;
 pub mod dsp;
-pub mod geometry;
-pub mod grids;
 pub mod kernels;
 pub mod link;
 pub mod model;
 pub mod pairing;
 pub mod requant;
-pub mod spec;
+pub mod server;

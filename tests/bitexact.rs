@@ -4,9 +4,10 @@
 
 use epssn::config;
 use epssn::model::{Model, WholeWorkspace, Workspace};
+use epssn_quant::quantise;
+use epssn_reference::{floatref, reference_model};
 use epssn_tests::{random_float_weights, synthetic_image, Rng};
 use fixed::types::U16F16;
-use host_sim::{floatref, quantise, reference_model};
 
 fn quantised_blob(seed: u64) -> Vec<u8> {
     let weights = random_float_weights(seed);
@@ -18,7 +19,7 @@ fn quantised_blob(seed: u64) -> Vec<u8> {
             floatref::run(&weights, &[&a, &b]).unwrap()
         })
         .collect();
-    let ranges = host_sim::calibration::SortedMagnitudes::new(&calib).ranges(100.0);
+    let ranges = epssn_quant::calibration::SortedMagnitudes::new(&calib).ranges(100.0);
     quantise::quantise(&weights, &ranges).unwrap().blob
 }
 
@@ -146,9 +147,9 @@ fn frames_of_the_real_recording() {
         env!("CARGO_MANIFEST_DIR"),
         "/../data/aris1200-telephoto-6frames.aris"
     );
-    let reader = host_sim::aris::ArisReader::open(path).unwrap();
+    let reader = epssn_aris::aris::ArisReader::open(path).unwrap();
     let frames: Vec<Vec<u8>> = (0..reader.frame_count())
-        .map(|i| host_sim::polar::frame_to_polar(&reader.frame(i).unwrap()).unwrap())
+        .map(|i| epssn_aris::polar::frame_to_polar(&reader.frame(i).unwrap()).unwrap())
         .collect();
     assert!(
         frames.iter().all(|f| f.iter().any(|&v| v > 0)),

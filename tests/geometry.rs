@@ -249,5 +249,5 @@ fn runtime_grids_equal_build_time_tables() {
 
 fn serde_json_from_spec() -> epssn::spec::ModelSpec {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/epssn-s.json");
-    host_sim::spec::load_spec(std::path::Path::new(path)).unwrap()
+    epssn_aris::spec::load_spec(std::path::Path::new(path)).unwrap()
 }

@@ -15,4 +15,5 @@ pub fn model_beam_centres_deg() -> Vec<f64> {
         .collect()
 }
 
-pub use host_sim::synthetic::{random_float_weights, synthetic_image, Rng};
+pub use epssn_reference::float::random_float_weights;
+pub use epssn_sim::synthetic::{synthetic_image, Rng};

@@ -9,25 +9,15 @@
 //! It reports instruction counts per layer. The result and exit code go out through
 //! semihosting. With the semihosting argument `serve` (QEMU
 //! `-semihosting-config enable=on,target=native,arg=serve`) it then serves the link protocol
-//! (`epssn::link`) on UART0 until a shutdown message.
+//! (`epssn::link`) on UART0 until a shutdown message, through the library's board-independent
+//! server (`epssn::server`); this crate only holds the board (`board.rs`) and the boot self-test.
 
 #![no_std]
 #![no_main]
 
-/// Logging through defmt with the `defmt` feature, nothing otherwise.
-#[cfg(feature = "defmt")]
-macro_rules! log {
-    ($($t:tt)*) => { defmt::info!($($t)*) };
-}
-#[cfg(not(feature = "defmt"))]
-macro_rules! log {
-    ($($t:tt)*) => {{}};
-}
-
 mod board;
 #[cfg(feature = "defmt")]
 mod defmt_logger;
-mod server;
 
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
@@ -249,7 +239,7 @@ fn main() -> ! {
             hprintln!("serving the link on UART0");
             let now = || clock.now();
             let high_water = board::stack_high_water;
-            let mut server = server::Server::new(
+            let mut server = epssn::server::Server::new(
                 model,
                 ws,
                 cache,

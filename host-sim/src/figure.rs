@@ -8,7 +8,7 @@ use epssn::config::{
 use font8x8::{UnicodeFonts, BASIC_FONTS};
 use image::{Rgb, RgbImage};
 
-use crate::preview::turbo;
+use epssn_sim::preview::turbo;
 
 /// What a panel shows and how it is coloured.
 pub enum Panel<'a> {

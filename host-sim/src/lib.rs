@@ -1,33 +1,9 @@
-//! Host tools for epssn: ARIS recordings, the sonar scene simulator, the float model and its
-//! training, the quantiser, and software-in-the-loop runs of the firmware.
+//! The epssn host tool's own modules: the main job (`host-sim run`, `host-sim bundle`) and its
+//! depth figures. Every other subcommand lives in the host crate of its role
+//! (`epssn-aris`, `epssn-sim`, `epssn-quant`, `epssn-train`, `epssn-sil`); `main.rs` only
+//! dispatches.
 
 #![deny(missing_docs)]
 
-pub mod aris;
-pub mod beams;
-pub mod bench;
-pub mod budgets;
-pub mod calibration;
-pub mod dataset;
 pub mod figure;
-pub mod floatref;
-pub mod groundtruth;
-pub mod inspect;
-pub mod intref;
-pub mod metrics;
-pub mod model;
-pub mod npy;
-pub mod polar;
-pub mod preview;
-pub mod qdiag;
-pub mod quantise;
-pub mod reference_model;
-pub mod render;
 pub mod run;
-pub mod safetensors_io;
-pub mod scene;
-pub mod sil;
-pub mod simulate;
-pub mod spec;
-pub mod synthetic;
-pub mod weights;

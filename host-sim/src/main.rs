@@ -14,46 +14,46 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
-    Inspect(host_sim::inspect::InspectArgs),
+    Inspect(epssn_aris::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
-    Quantise(host_sim::quantise::QuantiseArgs),
+    Quantise(epssn_quant::quantise::QuantiseArgs),
     /// Where the int8 model loses accuracy: each tensor rounded alone, and all but it.
-    Qdiag(host_sim::qdiag::QdiagArgs),
+    Qdiag(epssn_quant::qdiag::QdiagArgs),
     /// The main job: pair a recording's frames by roll, run the int8 library and the float
     /// model, check bit-exactness, score against ground truth, write PNG and PLY.
     Run(host_sim::run::RunArgs),
     /// Concatenate simulated samples into one recording with ground truth (the demo data).
     Bundle(host_sim::run::BundleArgs),
     /// Simulate sonar scenes with exact ground truth into sample folders.
-    Simulate(host_sim::simulate::SimulateArgs),
+    Simulate(epssn_sim::simulate::SimulateArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
-    Metrics(host_sim::metrics::MetricsArgs),
+    Metrics(epssn_sim::metrics::MetricsArgs),
     /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
     /// check the depth maps bit for bit against the host library; optional fuzz run.
-    Sil(host_sim::sil::SilArgs),
+    Sil(epssn_sil::sil::SilArgs),
     /// Per-layer MACs and QEMU Cortex-M7 instructions of the firmware.
-    Bench(host_sim::bench::BenchArgs),
+    Bench(epssn_sil::bench::BenchArgs),
     /// Train the float EPSSN on simulated data.
-    Train(host_sim::model::cli::TrainArgs),
+    Train(epssn_train::cli::TrainArgs),
     /// Evaluate float weights on a simulated test folder (CD and MAE as in the paper).
-    Eval(host_sim::model::cli::EvalArgs),
+    Eval(epssn_train::cli::EvalArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let stdout = std::io::stdout();
     let result = match cli.command {
-        Command::Inspect(args) => host_sim::inspect::run(&args, &mut stdout.lock()),
-        Command::Quantise(args) => host_sim::quantise::run(&args, &mut stdout.lock()),
-        Command::Qdiag(args) => host_sim::qdiag::run(&args),
+        Command::Inspect(args) => epssn_aris::inspect::run(&args, &mut stdout.lock()),
+        Command::Quantise(args) => epssn_quant::quantise::run(&args, &mut stdout.lock()),
+        Command::Qdiag(args) => epssn_quant::qdiag::run(&args),
         Command::Run(args) => host_sim::run::run(&args, &mut stdout.lock()),
         Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
-        Command::Simulate(args) => host_sim::simulate::run(&args),
-        Command::Metrics(args) => host_sim::metrics::run(&args),
-        Command::Sil(args) => host_sim::sil::run(&args, &mut stdout.lock()),
-        Command::Bench(args) => host_sim::bench::run(&args, &mut stdout.lock()),
-        Command::Train(args) => host_sim::model::cli::train(&args),
-        Command::Eval(args) => host_sim::model::cli::eval(&args),
+        Command::Simulate(args) => epssn_sim::simulate::run(&args),
+        Command::Metrics(args) => epssn_sim::metrics::run(&args),
+        Command::Sil(args) => epssn_sil::sil::run(&args, &mut stdout.lock()),
+        Command::Bench(args) => epssn_sil::bench::run(&args, &mut stdout.lock()),
+        Command::Train(args) => epssn_train::cli::train(&args),
+        Command::Eval(args) => epssn_train::cli::eval(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

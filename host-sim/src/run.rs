@@ -15,12 +15,13 @@ use epssn::model::{Model, Workspace};
 use fixed::types::U16F16;
 use serde::Serialize;
 
-use crate::aris::ArisReader;
-use crate::metrics::{self, Accuracy, Metrics};
-use crate::{figure, floatref, npy, polar, preview, reference_model, weights};
-
-/// The bundled demo: a simulated ARIS 3000 recording and its ground truth.
-pub const DEMO_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo");
+use crate::figure;
+use epssn_aris::aris::ArisReader;
+use epssn_aris::{npy, polar};
+use epssn_reference::{floatref, reference_model, weights};
+use epssn_sim::dataset::DEMO_DIR;
+use epssn_sim::metrics::{self, Accuracy, Metrics};
+use epssn_sim::preview;
 
 /// Arguments of `host-sim run`.
 #[derive(clap::Args, Debug)]
@@ -102,45 +103,6 @@ pub struct Summary {
     pub warnings: Vec<String>,
 }
 
-/// Explains why a recording cannot feed the model, or `None` when it fits.
-pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
-    let mut why = Vec::new();
-    let system = reader.system();
-    if system.name() != config::SONAR_SYSTEM {
-        why.push(format!(
-            "sonar is {}, the model is for {}",
-            system.name(),
-            config::SONAR_SYSTEM
-        ));
-    }
-    if reader.telephoto() {
-        why.push("telephoto lens (narrower beams than the model's table)".to_string());
-    }
-    if reader.beams() != config::BEAMS {
-        why.push(format!(
-            "{} beams, the model needs {}",
-            reader.beams(),
-            config::BEAMS
-        ));
-    }
-    if let Ok(frame) = reader.frame(0) {
-        if let Ok(r) = frame.range_geometry() {
-            let end = r.start + r.step * (r.samples.saturating_sub(1)) as f64;
-            // The recording must cover the model's window (within one sample).
-            if r.start > config::R_MIN_M + r.step || end < config::R_MAX_M - r.step {
-                why.push(format!(
-                    "range window {:.3}–{:.3} m does not cover the model's {:.3}–{:.3} m",
-                    r.start,
-                    end,
-                    config::R_MIN_M,
-                    config::R_MAX_M
-                ));
-            }
-        }
-    }
-    Ok((!why.is_empty()).then(|| why.join("; ")))
-}
-
 fn frame_roll(reader: &ArisReader, i: usize) -> Option<f64> {
     let h = reader.frame_header(i).ok()?;
     [h.sonar_roll_deg, h.roll_abs_position_deg]
@@ -216,7 +178,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     let reader =
         ArisReader::open(&recording).with_context(|| format!("opening {}", recording.display()))?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
-    if let Some(why) = geometry_mismatch(&reader)? {
+    if let Some(why) = polar::geometry_mismatch(&reader)? {
         bail!(
             "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
              wrong, so nothing was computed.",
@@ -261,38 +223,31 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
     std::fs::create_dir_all(&args.out)?;
 
-    // Per-frame caches: each frame's polar image and int8 features are computed once.
+    // Each frame's polar image is computed once; the library computes each group's features
+    // and depth in one call and hands the features back for the bit-exactness check.
     let mut ws = Box::new(Workspace::new());
     let mut images: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
-    let mut features: BTreeMap<usize, Vec<i8>> = BTreeMap::new();
     for &f in groups.iter().flatten() {
-        if features.contains_key(&f) {
-            continue;
+        if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
+            e.insert(polar::frame_to_polar(&reader.frame(f)?)?);
         }
-        let img = polar::frame_to_polar(&reader.frame(f)?)?;
-        let mut feat = vec![0i8; config::FEATURE_LEN];
-        model
-            .features(&img, &mut ws, &mut feat)
-            .map_err(|e| anyhow::anyhow!("features of frame {f}: {e:?}"))?;
-        images.insert(f, img);
-        features.insert(f, feat);
     }
 
     let mut details = Vec::new();
     for group in &groups {
         let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
-        let sources: Vec<&[i8]> = group[1..].iter().map(|f| features[f].as_slice()).collect();
+        let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
         let mut depth_q = vec![U16F16::ZERO; config::DEPTH_LEN];
         model
-            .depth_from_features(&features[&group[0]], &sources, &mut ws, &mut depth_q)
+            .depth(&views, &mut features, &mut ws, &mut depth_q)
             .map_err(|e| anyhow::anyhow!("depth of frames {group:?}: {e:?}"))?;
         let reference = reference_model::run(&bundle.blob, &views)?;
         let bits: Vec<u32> = depth_q.iter().map(|d| d.to_bits()).collect();
         let bit_exact = bits == reference.depth
-            && group
-                .iter()
+            && features
+                .chunks_exact(config::FEATURE_LEN)
                 .zip(&reference.features)
-                .all(|(f, layers)| layers.values().last().is_some_and(|v| v == &features[f]));
+                .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
         let depth_int8: Vec<f32> = depth_q.iter().map(|d| d.to_num::<f32>()).collect();
         let depth_float = floatref::run(&bundle.float, &views)?.depth;
         let int8_vs_float_mae = 1000.0
@@ -485,9 +440,9 @@ pub struct BundleArgs {
 pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
     let gt = args.out.join("gt");
     std::fs::create_dir_all(&gt)?;
-    let mut frames: Vec<(crate::aris::FrameHeader, Vec<u8>)> = Vec::new();
+    let mut frames: Vec<(epssn_aris::aris::FrameHeader, Vec<u8>)> = Vec::new();
     for dir in &args.samples {
-        let sample = crate::dataset::Sample::load(dir)?;
+        let sample = epssn_sim::dataset::Sample::load(dir)?;
         let reference = frames.len();
         for k in 0..sample.polar_views.len() {
             let path = dir.join(format!("view{k}.aris"));
@@ -511,10 +466,10 @@ pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
             &sample.mask,
         )?;
     }
-    let refs: Vec<(&crate::aris::FrameHeader, &[u8])> =
+    let refs: Vec<(&epssn_aris::aris::FrameHeader, &[u8])> =
         frames.iter().map(|(h, d)| (h, d.as_slice())).collect();
     let path = args.out.join("recording.aris");
-    crate::aris::write_recording(&path, &refs)?;
+    epssn_aris::aris::write_recording(&path, &refs)?;
     writeln!(
         out,
         "wrote {} frames to {} and ground truth to {}",

@@ -41,7 +41,7 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     let stack = r["stack_high_water_bytes"].as_u64().unwrap();
     assert!(stack > 0 && ram > stack, "ram {ram} stack {stack}");
     // The budgets of weights/budgets.json (which `host-sim sil` itself enforces).
-    let b = host_sim::budgets::Budgets::load(&host_sim::budgets::default_path()).unwrap();
+    let b = epssn_sil::budgets::Budgets::load(&epssn_sil::budgets::default_path()).unwrap();
     assert!(ram <= b.ram_bytes, "RAM budget: {ram}");
     assert!(flash > 0 && flash <= b.flash_bytes, "flash budget: {flash}");
     assert!(

@@ -1,0 +1,254 @@
+//! `host-sim qdiag`: where does the int8 model lose accuracy?
+//!
+//! The float reference ([`epssn_reference::floatref`]) is run with chosen tensors rounded to the int8 grid
+//! the quantiser gave them (`round(x / s)` clamped to `[-128, 127]`, times `s`), and with the
+//! weights rounded to their per-channel int8 grid. Each row quantises one thing alone, and the
+//! whole model with everything but that one thing, so the table shows both what a tensor costs
+//! on its own and what fixing it would buy. The last row is the real int8 library. Figures are
+//! depth differences from the float model and MAE against ground truth, both over the mask.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{anyhow, ensure, Context, Result};
+use epssn::config::LAYERS;
+use rayon::prelude::*;
+
+use crate::quantise::quantise_weights;
+use epssn_reference::float::WeightLayout;
+use epssn_reference::floatref::{fold_all, run_folded, FoldedWeights};
+
+/// `host-sim qdiag`.
+#[derive(clap::Args, Debug)]
+pub struct QdiagArgs {
+    /// Weights folder: `model.safetensors`, `quantisation.json` (the activation scales) and the
+    /// blob `epssn-s.q8.bin`.
+    #[arg(long)]
+    pub weights: PathBuf,
+    /// Simulated data folder; its `test/` split is used (held out from training and calibration).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Samples to use (evenly spread over the split).
+    #[arg(long, default_value_t = 24)]
+    pub limit: usize,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Rounds `x` to the symmetric int8 grid of scale `s`.
+pub fn fake_quant(x: &mut [f32], s: f64) {
+    let s = s as f32;
+    for v in x {
+        *v = (*v / s).round().clamp(-128.0, 127.0) * s;
+    }
+}
+
+/// Weights and biases rounded as the quantiser rounds them (per-channel int8 weights; int32
+/// biases at the accumulator scale), returned in float.
+pub fn fake_quant_weights(folded: &FoldedWeights, scales: &BTreeMap<String, f64>) -> FoldedWeights {
+    let nf = epssn::model::FEATURE_LAYERS;
+    let mut input = "input";
+    LAYERS
+        .iter()
+        .zip(folded)
+        .enumerate()
+        .map(|(i, (l, (w, b)))| {
+            if i == nf {
+                input = "cost";
+            }
+            let layout = WeightLayout::of(l);
+            let (q, ws) = quantise_weights(w, &layout);
+            let mut wq = vec![0f64; w.len()];
+            for (o, &s) in ws.iter().enumerate() {
+                for k in layout.channel_indices(o) {
+                    wq[k] = q[k] as f64 * s;
+                }
+            }
+            let s_in = scales.get(input).copied().unwrap_or(1.0);
+            let bq = b
+                .iter()
+                .zip(&ws)
+                .map(|(&b, &s)| (b / (s_in * s)).round() * s_in * s)
+                .collect();
+            input = l.name;
+            (wq, bq)
+        })
+        .collect()
+}
+
+/// One configuration: which tensors are rounded and whether the weights are.
+#[derive(Clone, Debug)]
+struct Config {
+    label: String,
+    tensors: Vec<String>,
+    weights: bool,
+}
+
+/// Runs `host-sim qdiag`.
+pub fn run(args: &QdiagArgs) -> Result<()> {
+    let weights = epssn_reference::safetensors_io::load_float_weights(
+        &args.weights.join("model.safetensors"),
+    )?;
+    let qpath = args.weights.join("quantisation.json");
+    let qjson: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&qpath).with_context(|| format!("reading {}", qpath.display()))?,
+    )
+    .with_context(|| format!("parsing {}", qpath.display()))?;
+    let scales: BTreeMap<String, f64> =
+        serde_json::from_value(qjson["quantisation"]["activation_scales"].clone())
+            .map_err(|e| anyhow!("{}: no activation_scales ({e})", qpath.display()))?;
+    let blob = std::fs::read(args.weights.join(epssn_reference::weights::BLOB_FILE))
+        .with_context(|| format!("reading the blob in {}", args.weights.display()))?;
+    let model =
+        epssn::model::Model::from_blob(&blob).map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
+
+    let dirs = epssn_sim::dataset::sample_dirs(&args.data, epssn_sim::scene::Split::Test)?;
+    ensure!(!dirs.is_empty(), "no samples under {}", args.data.display());
+    let step = (dirs.len() / args.limit.max(1)).max(1);
+    let dirs: Vec<_> = dirs.into_iter().step_by(step).take(args.limit).collect();
+
+    let names: Vec<String> = scales.keys().filter(|k| *k != "input").cloned().collect();
+    let mut configs = vec![Config {
+        label: "float".into(),
+        tensors: vec![],
+        weights: false,
+    }];
+    configs.push(Config {
+        label: "weights only".into(),
+        tensors: vec![],
+        weights: true,
+    });
+    for n in &names {
+        configs.push(Config {
+            label: format!("{n} only"),
+            tensors: vec![n.clone()],
+            weights: false,
+        });
+    }
+    for n in &names {
+        configs.push(Config {
+            label: format!("all but {n}"),
+            tensors: names.iter().filter(|m| *m != n).cloned().collect(),
+            weights: true,
+        });
+    }
+    configs.push(Config {
+        label: "all but weights".into(),
+        tensors: names.clone(),
+        weights: false,
+    });
+    configs.push(Config {
+        label: "all (float emulation)".into(),
+        tensors: names.clone(),
+        weights: true,
+    });
+
+    let folded = fold_all(&weights)?;
+    let folded_q = fake_quant_weights(&folded, &scales);
+    let views_n = crate::quantise::trained_views(&args.weights)?;
+    // Per sample: (diff from float, MAE vs GT) per config, then the library's.
+    let per_sample: Vec<Vec<(f64, f64)>> = dirs
+        .par_iter()
+        .map(|d| -> Result<_> {
+            let s = epssn_sim::dataset::Sample::load(d)?;
+            let views = s.polar_views_u8();
+            let refs: Vec<&[u8]> = views.iter().take(views_n).map(|v| v.as_slice()).collect();
+            let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
+            let mut float_depth = Vec::new();
+            let mut rows = Vec::new();
+            for c in &configs {
+                let w = if c.weights { &folded_q } else { &folded };
+                let mut hook = |name: &str, x: &mut [f32]| {
+                    if c.tensors.iter().any(|t| t == name) {
+                        if let Some(&sc) = scales.get(name) {
+                            fake_quant(x, sc);
+                        }
+                    }
+                };
+                let t = run_folded(w, &refs, &mut hook)?;
+                if float_depth.is_empty() {
+                    float_depth = t.depth.clone();
+                }
+                rows.push(diff_and_mae(&t.depth, &float_depth, &s.depth, &mask)?);
+            }
+            let mut ws = Box::new(epssn::model::Workspace::new());
+            let dq = epssn_reference::int8::depth_metres(&model, &refs, &mut ws)?;
+            rows.push(diff_and_mae(&dq, &float_depth, &s.depth, &mask)?);
+            Ok(rows)
+        })
+        .collect::<Result<_>>()?;
+
+    let labels = configs
+        .iter()
+        .map(|c| c.label.clone())
+        .chain(["int8 library".to_string()]);
+    let table: Vec<(String, f64, f64)> = labels
+        .enumerate()
+        .map(|(i, label)| {
+            // Samples with an empty mask (NaN) do not count.
+            let valid: Vec<(f64, f64)> = per_sample
+                .iter()
+                .map(|rows| rows[i])
+                .filter(|(d, m)| d.is_finite() && m.is_finite())
+                .collect();
+            let k = valid.len().max(1) as f64;
+            let (d, m) = valid
+                .iter()
+                .fold((0.0, 0.0), |(d, m), (a, b)| (d + a / k, m + b / k));
+            (label, d, m)
+        })
+        .collect();
+    if args.json {
+        let rows: Vec<_> = table
+            .iter()
+            .map(|(l, d, m)| serde_json::json!({"config": l, "vs_float_mm": d, "mae_mm": m}))
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "weights": args.weights.display().to_string(),
+                "samples": per_sample.len(),
+                "rows": rows,
+            }))?
+        );
+    } else {
+        println!(
+            "{} samples of {}; depth |int8 − float| and MAE vs ground truth over the mask, mm",
+            per_sample.len(),
+            args.data.join("test").display()
+        );
+        println!("{:<24} {:>10} {:>10}", "quantised", "vs float", "MAE");
+        for (l, d, m) in &table {
+            println!("{l:<24} {d:>10.2} {m:>10.2}");
+        }
+    }
+    Ok(())
+}
+
+/// Mean |a − float| and mean |a − gt| over the mask, in mm (NaN for an empty mask).
+fn diff_and_mae(a: &[f32], float: &[f32], gt: &[f32], mask: &[bool]) -> Result<(f64, f64)> {
+    ensure!(a.len() == float.len() && a.len() == gt.len() && a.len() == mask.len());
+    let (mut d, mut e, mut n) = (0f64, 0f64, 0usize);
+    for i in 0..a.len() {
+        if mask[i] {
+            d += (a[i] - float[i]).abs() as f64;
+            e += (a[i] - gt[i]).abs() as f64;
+            n += 1;
+        }
+    }
+    let k = 1000.0 / n as f64;
+    Ok((d * k, e * k))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fake_quant_rounds_to_the_grid_and_saturates() {
+        let mut x = [0.26f32, -0.24, 100.0, -100.0, 0.0];
+        fake_quant(&mut x, 0.5);
+        assert_eq!(x, [0.5, -0.0, 63.5, -64.0, 0.0]);
+    }
+}

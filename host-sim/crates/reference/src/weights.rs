@@ -1,0 +1,77 @@
+//! Weights folders (`weights/<name>/`): the int8 blob the library runs and the float weights it
+//! was quantised from, which the float reference runs.
+//!
+//! The float weights are `model.safetensors` (a trained model) or, for an untrained bring-up
+//! model, a `float_source` entry `{"random_init": seed}` in `quantisation.json`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+
+use crate::float::FloatWeights;
+
+/// File name of the blob inside a weights folder.
+pub const BLOB_FILE: &str = "epssn-s.q8.bin";
+
+/// The blob the firmware embeds: `EPSSN_BLOB` if set, else the path named in
+/// `weights/FIRMWARE_WEIGHTS` (the same rule as `firmware/build.rs`).
+pub fn firmware_blob_path() -> Result<PathBuf> {
+    if let Ok(p) = std::env::var("EPSSN_BLOB") {
+        return Ok(PathBuf::from(p));
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
+    let pointer = root.join("weights/FIRMWARE_WEIGHTS");
+    let rel = std::fs::read_to_string(&pointer)
+        .with_context(|| format!("reading {}", pointer.display()))?;
+    Ok(root.join(rel.trim()))
+}
+
+/// The folder of the blob the firmware embeds.
+pub fn firmware_weights_dir() -> Result<PathBuf> {
+    let blob = firmware_blob_path()?;
+    blob.parent()
+        .map(Path::to_path_buf)
+        .ok_or_else(|| anyhow!("{} names no folder", blob.display()))
+}
+
+/// A loaded weights folder.
+pub struct Bundle {
+    /// The int8 blob (not yet verified: `Model::from_blob` does that).
+    pub blob: Vec<u8>,
+    /// The float weights it was quantised from.
+    pub float: FloatWeights,
+    /// Where the float weights came from.
+    pub description: String,
+}
+
+/// Loads `dir`'s blob and float weights.
+pub fn load(dir: &Path) -> Result<Bundle> {
+    let blob_path = dir.join(BLOB_FILE);
+    let blob =
+        std::fs::read(&blob_path).with_context(|| format!("reading {}", blob_path.display()))?;
+    let st = dir.join("model.safetensors");
+    if st.exists() {
+        return Ok(Bundle {
+            blob,
+            float: crate::safetensors_io::load_float_weights(&st)?,
+            description: format!("trained, {}", st.display()),
+        });
+    }
+    let q = dir.join("quantisation.json");
+    let text = std::fs::read_to_string(&q).with_context(|| format!("reading {}", q.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)?;
+    match v
+        .pointer("/float_source/random_init")
+        .and_then(|s| s.as_u64())
+    {
+        Some(seed) => Ok(Bundle {
+            blob,
+            float: crate::float::random_float_weights(seed),
+            description: format!("UNTRAINED: He-initialised float weights, seed {seed}"),
+        }),
+        None => bail!(
+            "{}: no model.safetensors and no float_source in quantisation.json",
+            dir.display()
+        ),
+    }
+}

@@ -1,0 +1,821 @@
+//! `host-sim sil`: software in the loop. Boots the firmware in QEMU (MPS2-AN500, Cortex-M7,
+//! `-icount shift=0`) with UART0 on a Unix socket, streams a recording's frames over the link
+//! protocol (`epssn::link`), and checks every depth map bit for bit against the library run
+//! on the host on the same frames with the same weight blob. Reports instructions per depth
+//! map (the firmware's timer ticks × 40 under `-icount shift=0`), flash and RAM from the ELF
+//! sections plus the measured stack high-water mark. `--fuzz N` then sends N malformed
+//! messages interleaved with status requests and checks that the firmware always answers.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
+use epssn::config;
+use epssn::link::{self, kind, Decoder, ErrorCode, Header, Message, Payload};
+use epssn::model::{Model, Workspace};
+use epssn::pairing::FeatureCache;
+use fixed::types::U16F16;
+use serde::Serialize;
+
+use epssn_aris::aris::ArisReader;
+use epssn_aris::polar::frame_to_polar;
+use epssn_sim::synthetic::Rng;
+
+/// Arguments of `host-sim sil`.
+#[derive(Args, Debug, Clone)]
+pub struct SilArgs {
+    /// The recording to stream (default: the bundled simulated demo, `data/demo/`).
+    #[arg(long)]
+    pub recording: Option<PathBuf>,
+    /// Print machine-readable JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// The firmware ELF (default: build firmware/ in release and use it).
+    #[arg(long)]
+    pub firmware: Option<PathBuf>,
+    /// Stream at most this many frames.
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// After the frames, send this many malformed messages (with status requests between).
+    #[arg(long, default_value_t = 0)]
+    pub fuzz: usize,
+    /// Seed of the fuzz run.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Seconds to wait for any one reply.
+    #[arg(long, default_value_t = 120)]
+    pub timeout: u64,
+    /// The budgets file (default: `weights/budgets.json`).
+    #[arg(long)]
+    pub budgets: Option<PathBuf>,
+}
+
+/// Counts of a fuzz run.
+#[derive(Serialize, Debug, Clone, Default, PartialEq)]
+pub struct FuzzReport {
+    /// Malformed messages sent, per kind.
+    pub sent: std::collections::BTreeMap<String, usize>,
+    /// Error replies received, per error code name.
+    pub error_replies: std::collections::BTreeMap<String, usize>,
+    /// Status requests sent between the malformed messages.
+    pub status_requests: usize,
+    /// Status replies received to them.
+    pub status_replies: usize,
+    /// Malformed messages that got no error reply before the next status reply.
+    pub unanswered: usize,
+}
+
+/// The result of a SIL run.
+#[derive(Serialize, Debug, Clone)]
+pub struct SilReport {
+    /// The recording streamed.
+    pub recording: String,
+    /// The firmware ELF.
+    pub firmware: String,
+    /// Frames sent.
+    pub frames: usize,
+    /// Depth maps received.
+    pub depth_maps: usize,
+    /// Depth maps the host library's pairing expected.
+    pub expected_depth_maps: usize,
+    /// Every depth map equal to the host library's, bit for bit, with the same frame pairs.
+    pub bit_exact: bool,
+    /// Values that differed, over all depth maps.
+    pub mismatched_values: usize,
+    /// Instructions per depth map: the newest frame's features plus the depth map, as the
+    /// firmware measured them (mean over the maps).
+    pub instructions_per_depth_map: u64,
+    /// Per depth map.
+    pub instructions: Vec<u32>,
+    /// `(reference, sources)` frame sequence numbers of each depth map.
+    pub pairs: Vec<(u32, Vec<u32>)>,
+    /// Flash: .vector_table + .text + .rodata + .data.
+    pub flash_bytes: u64,
+    /// RAM: .data + .bss + .uninit + stack high-water mark.
+    pub ram_bytes: u64,
+    /// Static RAM: .data + .bss + .uninit.
+    pub static_ram_bytes: u64,
+    /// Stack high-water mark reported by the firmware, bytes.
+    pub stack_high_water_bytes: u32,
+    /// Status counters at the end: frames, depth maps, errors.
+    pub device_frames: u32,
+    /// Depth maps the device counted.
+    pub device_depth_maps: u32,
+    /// Errors the device counted.
+    pub device_errors: u32,
+    /// The fuzz run, if any.
+    pub fuzz: Option<FuzzReport>,
+    /// The firmware answered every status request and shut down cleanly.
+    pub alive: bool,
+    /// The budgets checked (`weights/budgets.json`).
+    pub budgets: crate::budgets::Budgets,
+    /// What exceeds the budgets (empty: within budget).
+    pub budget_violations: Vec<String>,
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..")
+}
+
+/// The weight blob the firmware embeds.
+fn firmware_blob() -> Result<Vec<u8>> {
+    let path = epssn_reference::weights::firmware_blob_path()?;
+    std::fs::read(&path).with_context(|| format!("reading weight blob {}", path.display()))
+}
+
+/// Builds the firmware (cargo decides whether anything changed) and returns the ELF.
+/// Builds the firmware (release) and returns the ELF path.
+pub fn build_firmware() -> Result<PathBuf> {
+    let dir = repo_root().join("firmware");
+    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+        .args(["build", "--release", "--quiet"])
+        .current_dir(&dir)
+        // The host build's variables must not leak into the cross build.
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("RUSTFLAGS")
+        .env_remove("CARGO_ENCODED_RUSTFLAGS")
+        .env_remove("CARGO_BUILD_TARGET")
+        .stdout(Stdio::null())
+        .status()
+        .context("running cargo build for the firmware")?;
+    if !status.success() {
+        bail!("firmware build failed ({status})");
+    }
+    Ok(dir.join("target/thumbv7em-none-eabihf/release/epssn-firmware"))
+}
+
+/// Flash and static RAM of the ELF, from its section sizes.
+pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
+    use object::{Object, ObjectSection};
+    let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
+    let file = object::File::parse(&*bytes).map_err(|e| anyhow!("parsing ELF: {e}"))?;
+    let size = |name: &str| {
+        file.section_by_name(name)
+            .map(|s| s.size())
+            .unwrap_or_default()
+    };
+    let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
+    let ram = size(".data") + size(".bss") + size(".uninit");
+    if flash == 0 || ram == 0 {
+        bail!(
+            "{}: no .text/.bss sections (not the firmware?)",
+            elf.display()
+        );
+    }
+    Ok((flash, ram))
+}
+
+/// One frame prepared on the host: the link message's content and the expected reply.
+struct HostFrame {
+    roll_deg: f32,
+    image: Vec<u8>,
+    /// `(reference, sources, depth bits)` when the frame completes a view set.
+    expected: Option<(u32, Vec<u32>, Vec<u32>)>,
+}
+
+/// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
+/// run` ([`epssn_aris::polar::geometry_mismatch`]).
+fn check_geometry(reader: &ArisReader) -> Result<()> {
+    if let Some(why) = epssn_aris::polar::geometry_mismatch(reader)? {
+        bail!(
+            "recording geometry does not fit the model ({}): {why}",
+            config::SPEC_NAME
+        );
+    }
+    Ok(())
+}
+
+/// Reads the recording, resamples every frame and runs the host library with the same
+/// pairing as the firmware.
+fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<HostFrame>> {
+    let reader =
+        ArisReader::open(path).with_context(|| format!("opening recording {}", path.display()))?;
+    check_geometry(&reader).with_context(|| format!("{}", path.display()))?;
+    let model = Model::from_blob(blob).map_err(|e| anyhow!("weight blob refused: {e:?}"))?;
+    let mut ws = Box::new(Workspace::new());
+    let mut cache = Box::new(FeatureCache::new());
+    let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
+    let mut out: Vec<HostFrame> = Vec::new();
+    for i in 0..n {
+        let frame = reader.frame(i)?;
+        let h = &frame.header;
+        let roll = if h.sonar_roll_deg.is_finite() {
+            h.sonar_roll_deg
+        } else if h.roll_abs_position_deg.is_finite() {
+            h.roll_abs_position_deg
+        } else {
+            bail!("frame {i} has neither SonarRoll nor RollAbsPosition: no roll to pair by");
+        };
+        let image = frame_to_polar(&frame)?;
+        let seq = i as u32 + 1;
+        let newest = cache
+            .insert(seq, roll, |f| model.features(&image, &mut ws, f))
+            .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
+        let expected = match cache.find(&newest, config::VIEWS) {
+            Some(set) => {
+                let reference = set.reference().context("empty view set")?;
+                // Frame seq s is frame s − 1 of the recording: this one or one already pushed.
+                let image_of = |s: u32| -> &[u8] {
+                    if s == seq {
+                        &image
+                    } else {
+                        &out[s as usize - 1].image
+                    }
+                };
+                let views: Vec<&[u8]> = core::iter::once(reference.seq)
+                    .chain(set.sources().iter().map(|f| f.seq))
+                    .map(image_of)
+                    .collect();
+                let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
+                let mut depth = vec![U16F16::ZERO; config::DEPTH_LEN];
+                model
+                    .depth(&views, &mut features, &mut ws, &mut depth)
+                    .map_err(|e| anyhow!("host depth of frame {i}: {e:?}"))?;
+                Some((
+                    reference.seq,
+                    set.sources().iter().map(|f| f.seq).collect(),
+                    depth.iter().map(|d| d.to_bits()).collect(),
+                ))
+            }
+            None => None,
+        };
+        out.push(HostFrame {
+            roll_deg: roll,
+            image,
+            expected,
+        });
+    }
+    Ok(out)
+}
+
+/// An owned device reply.
+#[derive(Debug, Clone)]
+// The texts are read through `Debug` in error messages.
+#[allow(dead_code)]
+enum Reply {
+    Depth {
+        reference: u32,
+        sources: Vec<u32>,
+        instructions: u32,
+        bits: Vec<u32>,
+    },
+    Status(link::Status),
+    Error {
+        code: u16,
+        msg: String,
+    },
+    /// A reply the host could not decode (the firmware must never send one).
+    Garbled(String),
+    Other(String),
+}
+
+fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
+    match event {
+        Ok(Message::Depth {
+            reference,
+            sources,
+            instructions,
+            depth,
+            ..
+        }) => Reply::Depth {
+            reference,
+            sources: sources.to_vec(),
+            instructions,
+            bits: (0..depth.len())
+                .filter_map(|i| depth.get(i).map(|d| d.to_bits()))
+                .collect(),
+        },
+        Ok(Message::Status { status, .. }) => Reply::Status(status),
+        Ok(Message::Error { code, msg, .. }) => Reply::Error {
+            code,
+            msg: msg.to_string(),
+        },
+        Ok(m) => Reply::Other(m.kind().to_string()),
+        Err(e) => Reply::Garbled(e.to_string()),
+    }
+}
+
+/// QEMU running the firmware, its link socket and the reply reader.
+struct Device {
+    qemu: Child,
+    link: UnixStream,
+    replies: Receiver<Reply>,
+    console: Arc<Mutex<Vec<String>>>,
+    dir: PathBuf,
+    timeout: Duration,
+}
+
+/// `qemu-system-arm` on the emulated Cortex-M7 board, no display or monitor; callers add the
+/// serial, semihosting and timing options.
+pub(crate) fn qemu_m7() -> Command {
+    let mut c = Command::new("qemu-system-arm");
+    c.args([
+        "-machine",
+        "mps2-an500",
+        "-cpu",
+        "cortex-m7",
+        "-nographic",
+        "-monitor",
+        "none",
+    ]);
+    c
+}
+
+impl Device {
+    fn boot(elf: &Path, timeout: Duration) -> Result<Self> {
+        let dir = std::env::temp_dir().join(format!("epssn-sil-{}", std::process::id()));
+        std::fs::create_dir_all(&dir)?;
+        let sock = dir.join("link.sock");
+        let _ = std::fs::remove_file(&sock);
+        let mut qemu = qemu_m7()
+            .args([
+                "-semihosting-config",
+                "enable=on,target=native,arg=serve",
+                "-icount",
+                "shift=0",
+                "-chardev",
+            ])
+            .arg(format!(
+                "socket,id=link,path={},server=on,wait=on",
+                sock.display()
+            ))
+            .args(["-serial", "chardev:link", "-kernel"])
+            .arg(elf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .context("starting qemu-system-arm (is QEMU installed?)")?;
+        let console = Arc::new(Mutex::new(Vec::new()));
+        for pipe in [
+            qemu.stdout
+                .take()
+                .map(|p| Box::new(p) as Box<dyn Read + Send>),
+            qemu.stderr
+                .take()
+                .map(|p| Box::new(p) as Box<dyn Read + Send>),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            let console = console.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(pipe).lines().map_while(|l| l.ok()) {
+                    if let Ok(mut c) = console.lock() {
+                        c.push(line);
+                    }
+                }
+            });
+        }
+        let start = Instant::now();
+        let link = loop {
+            match UnixStream::connect(&sock) {
+                Ok(s) => break s,
+                Err(e) => {
+                    if let Ok(Some(status)) = qemu.try_wait() {
+                        bail!("QEMU exited before the link came up ({status})");
+                    }
+                    if start.elapsed() > Duration::from_secs(20) {
+                        let _ = qemu.kill();
+                        bail!("QEMU link socket {}: {e}", sock.display());
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            }
+        };
+        let mut reader = link.try_clone()?;
+        let (tx, replies) = channel();
+        std::thread::spawn(move || {
+            let mut decoder = Box::new(Decoder::new());
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = reader.read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+                for &b in &buf[..n] {
+                    decoder.push(b);
+                    while let Some(ev) = decoder.poll() {
+                        if tx.send(owned(ev)).is_err() {
+                            return;
+                        }
+                    }
+                }
+            }
+        });
+        Ok(Self {
+            qemu,
+            link,
+            replies,
+            console,
+            dir,
+            timeout,
+        })
+    }
+
+    fn send(&mut self, bytes: &[u8]) -> Result<()> {
+        self.link.write_all(bytes).context("writing to the link")
+    }
+
+    fn send_msg(&mut self, msg: &Message<'_>) -> Result<()> {
+        let mut v = Vec::new();
+        link::encode(msg, &mut |b: &[u8]| {
+            v.extend_from_slice(b);
+            Ok::<(), ()>(())
+        })
+        .map_err(|e| anyhow!("encoding: {e:?}"))?;
+        self.send(&v)
+    }
+
+    fn reply(&mut self) -> Result<Reply> {
+        match self.replies.recv_timeout(self.timeout) {
+            Ok(r) => Ok(r),
+            Err(RecvTimeoutError::Timeout) => bail!(
+                "no reply from the firmware within {:?}; console:\n{}",
+                self.timeout,
+                self.console_text()
+            ),
+            Err(RecvTimeoutError::Disconnected) => {
+                bail!("the link closed; console:\n{}", self.console_text())
+            }
+        }
+    }
+
+    fn console_text(&self) -> String {
+        self.console
+            .lock()
+            .map(|c| c.join("\n"))
+            .unwrap_or_default()
+    }
+
+    /// Waits for QEMU to exit; true when it exited successfully.
+    fn wait_exit(&mut self) -> bool {
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(30) {
+            if let Ok(Some(status)) = self.qemu.try_wait() {
+                return status.success();
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        false
+    }
+}
+
+impl Drop for Device {
+    fn drop(&mut self) {
+        if let Ok(None) = self.qemu.try_wait() {
+            let _ = self.qemu.kill();
+            let _ = self.qemu.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
+    let mut v = Vec::new();
+    let _ = link::encode_raw(h, Payload::Bytes(payload), &mut |b: &[u8]| {
+        v.extend_from_slice(b);
+        Ok::<(), ()>(())
+    });
+    v
+}
+
+fn msg_bytes(msg: &Message<'_>) -> Vec<u8> {
+    let mut v = Vec::new();
+    let _ = link::encode(msg, &mut |b: &[u8]| {
+        v.extend_from_slice(b);
+        Ok::<(), ()>(())
+    });
+    v
+}
+
+/// One malformed message of a random kind; `seq` is the next valid sequence number and
+/// `last` the last one the device accepted.
+fn malformed(rng: &mut Rng, seq: &mut u32, last: u32, image: &[u8]) -> (&'static str, Vec<u8>) {
+    let frame_header = |seq: u32| Header {
+        t: kind::FRAME,
+        seq,
+        roll: Some(7.0),
+        r: Some(config::INPUT_RANGE_BINS as u32),
+        b: Some(config::INPUT_COLUMNS as u32),
+        len: Some(image.len() as u32),
+        ..Header::default()
+    };
+    let pick = (rng.next_u64() % 8) as usize;
+    *seq += 1;
+    let s = *seq;
+    match pick {
+        0 => {
+            let n = 1 + (rng.next_u64() % 200) as usize;
+            (
+                "random_bytes",
+                (0..n).map(|_| rng.next_u64() as u8).collect(),
+            )
+        }
+        1 => {
+            let full = if rng.next_u64() & 1 == 0 {
+                raw_bytes(&frame_header(s), image)
+            } else {
+                msg_bytes(&Message::StatusRequest { seq: s })
+            };
+            let n = 1 + (rng.next_u64() as usize) % (full.len() - 1);
+            ("truncated", full[..n].to_vec())
+        }
+        2 => {
+            let mut v = if rng.next_u64() & 3 == 0 {
+                raw_bytes(&frame_header(s), image)
+            } else {
+                msg_bytes(&Message::StatusRequest { seq: s })
+            };
+            let at =
+                link::PREAMBLE_LEN + (rng.next_u64() as usize) % (v.len() - link::PREAMBLE_LEN);
+            v[at] ^= 1 << (rng.next_u64() % 8);
+            ("bad_crc", v)
+        }
+        3 => {
+            let json = br#"{"t":"frame","seq":}"#;
+            let mut v = link::SYNC.to_vec();
+            v.extend((json.len() as u16).to_le_bytes());
+            v.extend_from_slice(json);
+            let crc = epssn::crc32::crc32(json);
+            v.extend(crc.to_le_bytes());
+            ("bad_json", v)
+        }
+        4 => {
+            let mut h = frame_header(s);
+            h.len = Some(link::MAX_PAYLOAD_LEN as u32 + 1 + (rng.next_u64() % 1000) as u32);
+            ("oversized", raw_bytes(&h, &[]))
+        }
+        5 => {
+            *seq -= 1;
+            (
+                "out_of_order",
+                msg_bytes(&Message::StatusRequest { seq: last }),
+            )
+        }
+        6 => {
+            let mut h = frame_header(s);
+            h.r = Some(2 * config::INPUT_RANGE_BINS as u32);
+            ("wrong_geometry", raw_bytes(&h, &[]))
+        }
+        _ => {
+            let mut h = raw_header_unknown(s);
+            h.len = None;
+            ("unknown_type", raw_bytes(&h, &[]))
+        }
+    }
+}
+
+fn raw_header_unknown(seq: u32) -> Header<'static> {
+    Header {
+        t: "reboot",
+        seq,
+        ..Header::default()
+    }
+}
+
+fn code_name(code: u16) -> String {
+    ErrorCode::from_code(code).map_or_else(|| format!("code {code}"), |c| format!("{c:?}"))
+}
+
+fn fuzz(
+    device: &mut Device,
+    n: usize,
+    seed: u64,
+    seq: &mut u32,
+    image: &[u8],
+) -> Result<FuzzReport> {
+    let mut rng = Rng(seed);
+    let mut report = FuzzReport::default();
+    for _ in 0..n {
+        let last = *seq;
+        let (what, bytes) = malformed(&mut rng, seq, last, image);
+        *report.sent.entry(what.to_string()).or_default() += 1;
+        device.send(&bytes)?;
+        *seq += 1;
+        device.send_msg(&Message::StatusRequest { seq: *seq })?;
+        report.status_requests += 1;
+        let mut errors = 0;
+        loop {
+            match device.reply()? {
+                Reply::Status(_) => {
+                    report.status_replies += 1;
+                    break;
+                }
+                Reply::Error { code, .. } => {
+                    errors += 1;
+                    *report.error_replies.entry(code_name(code)).or_default() += 1;
+                }
+                other => bail!("fuzz: unexpected reply {other:?}"),
+            }
+        }
+        if errors == 0 {
+            report.unanswered += 1;
+        }
+    }
+    Ok(report)
+}
+
+/// Runs the SIL and returns the report.
+pub fn sil(args: &SilArgs) -> Result<SilReport> {
+    let recording = args
+        .recording
+        .clone()
+        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
+    let blob = firmware_blob()?;
+    let frames = prepare_frames(&recording, args.frames, &blob)?;
+    if frames.is_empty() {
+        bail!("{}: no frames", recording.display());
+    }
+    let elf = match &args.firmware {
+        Some(p) => p.clone(),
+        None => build_firmware()?,
+    };
+    let (flash, static_ram) = elf_sizes(&elf)?;
+    let mut device = Device::boot(&elf, Duration::from_secs(args.timeout))?;
+
+    let mut seq = 0u32;
+    let mut depth_maps = 0;
+    let mut mismatched = 0;
+    let mut pairs_ok = true;
+    let mut instructions = Vec::new();
+    let mut pairs = Vec::new();
+    for (i, f) in frames.iter().enumerate() {
+        seq += 1;
+        device.send_msg(&Message::Frame {
+            seq,
+            roll_deg: f.roll_deg,
+            image: &f.image,
+        })?;
+        match (device.reply()?, &f.expected) {
+            (
+                Reply::Depth {
+                    reference,
+                    sources,
+                    instructions: instr,
+                    bits,
+                },
+                Some((eref, esrc, ebits)),
+            ) => {
+                depth_maps += 1;
+                instructions.push(instr);
+                pairs_ok &= reference == *eref && sources == *esrc;
+                mismatched += bits.iter().zip(ebits).filter(|(a, b)| a != b).count()
+                    + bits.len().abs_diff(ebits.len());
+                pairs.push((reference, sources));
+            }
+            (Reply::Status(_), None) => {}
+            (r, e) => bail!(
+                "frame {i}: reply {:?} but the host expected {}",
+                match r {
+                    Reply::Depth {
+                        reference, sources, ..
+                    } => format!("depth ({reference}, {sources:?})"),
+                    other => format!("{other:?}"),
+                },
+                match e {
+                    Some((r, s, _)) => format!("a depth map of ({r}, {s:?})"),
+                    None => "a status (no pair yet)".into(),
+                }
+            ),
+        }
+    }
+    let fuzz_report = if args.fuzz > 0 {
+        Some(fuzz(
+            &mut device,
+            args.fuzz,
+            args.seed,
+            &mut seq,
+            &frames[0].image,
+        )?)
+    } else {
+        None
+    };
+    seq += 1;
+    device.send_msg(&Message::StatusRequest { seq })?;
+    let status = loop {
+        match device.reply()? {
+            Reply::Status(s) => break s,
+            Reply::Error { .. } => continue,
+            other => bail!("status request: unexpected reply {other:?}"),
+        }
+    };
+    seq += 1;
+    device.send_msg(&Message::Shutdown { seq })?;
+    let shutdown_ok = matches!(device.reply()?, Reply::Status(_));
+    let exited = device.wait_exit();
+    let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
+    let mean = if instructions.is_empty() {
+        0
+    } else {
+        instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
+    };
+    let budgets = crate::budgets::Budgets::load(
+        &args
+            .budgets
+            .clone()
+            .unwrap_or_else(crate::budgets::default_path),
+    )?;
+    let ram = static_ram + u64::from(status.stack_high_water);
+    let budget_violations = budgets.violations(&instructions, ram, flash);
+    let fuzz_alive = fuzz_report
+        .as_ref()
+        .is_none_or(|f| f.status_replies == f.status_requests && f.unanswered == 0);
+    Ok(SilReport {
+        recording: recording.display().to_string(),
+        firmware: elf.display().to_string(),
+        frames: frames.len(),
+        depth_maps,
+        expected_depth_maps,
+        bit_exact: pairs_ok
+            && mismatched == 0
+            && depth_maps == expected_depth_maps
+            && depth_maps > 0,
+        mismatched_values: mismatched,
+        instructions_per_depth_map: mean,
+        instructions,
+        pairs,
+        flash_bytes: flash,
+        ram_bytes: ram,
+        static_ram_bytes: static_ram,
+        stack_high_water_bytes: status.stack_high_water,
+        device_frames: status.frames,
+        device_depth_maps: status.depth_maps,
+        device_errors: status.errors,
+        fuzz: fuzz_report,
+        alive: shutdown_ok && exited && fuzz_alive,
+        budgets,
+        budget_violations,
+    })
+}
+
+/// `host-sim sil`: prints the report; fails unless bit-exact and alive.
+pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
+    let r = sil(args)?;
+    if args.json {
+        writeln!(out, "{}", serde_json::to_string_pretty(&r)?)?;
+    } else {
+        writeln!(out, "recording: {}", r.recording)?;
+        writeln!(out, "firmware: {}", r.firmware)?;
+        writeln!(
+            out,
+            "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
+            r.frames, r.depth_maps, r.expected_depth_maps, r.bit_exact, r.mismatched_values
+        )?;
+        writeln!(out, "pairs (reference, sources): {:?}", r.pairs)?;
+        writeln!(
+            out,
+            "instructions per depth map (features of the new frame + depth map): {} (each: {:?})",
+            r.instructions_per_depth_map, r.instructions
+        )?;
+        writeln!(
+            out,
+            "flash: {} bytes; RAM: {} bytes = {} static + {} stack high-water",
+            r.flash_bytes, r.ram_bytes, r.static_ram_bytes, r.stack_high_water_bytes
+        )?;
+        writeln!(
+            out,
+            "device counters: {} frames, {} depth maps, {} errors",
+            r.device_frames, r.device_depth_maps, r.device_errors
+        )?;
+        if let Some(f) = &r.fuzz {
+            writeln!(
+                out,
+                "fuzz: sent {:?}; error replies {:?}; status {}/{} answered; {} malformed \
+                 messages without an error reply",
+                f.sent, f.error_replies, f.status_replies, f.status_requests, f.unanswered
+            )?;
+        }
+        writeln!(out, "alive: {}", r.alive)?;
+        writeln!(
+            out,
+            "budgets: {} instructions per depth map, RAM {} bytes, flash {} bytes: {}",
+            r.budgets.instructions_per_depth_map,
+            r.budgets.ram_bytes,
+            r.budgets.flash_bytes,
+            if r.budget_violations.is_empty() {
+                "within".to_string()
+            } else {
+                r.budget_violations.join("; ")
+            }
+        )?;
+    }
+    if !r.bit_exact {
+        bail!("SIL: depth maps are not bit-exact with the host library");
+    }
+    if !r.alive {
+        bail!("SIL: the firmware stopped answering or did not shut down cleanly");
+    }
+    if !r.budget_violations.is_empty() {
+        bail!(
+            "SIL: over budget (weights/budgets.json): {}",
+            r.budget_violations.join("; ")
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,14 @@
+//! The sonar scene simulator of the epssn host tools: scenes, ray-cast ARIS views with exact
+//! ground truth, simulated datasets on disk, previews, the accuracy metrics against ground
+//! truth (MAE, masked MAE, CD), and the deterministic generator of test and bring-up data.
+
+#![deny(missing_docs)]
+
+pub mod dataset;
+pub mod groundtruth;
+pub mod metrics;
+pub mod preview;
+pub mod render;
+pub mod scene;
+pub mod simulate;
+pub mod synthetic;

@@ -1,0 +1,379 @@
+//! The paper's depth metrics, point clouds from depth maps, and PLY export.
+//!
+//! - MAE = β / (H·W) · Σ |D̂ − D| with β = 1000 (metres → millimetres), exactly as the paper's
+//!   formula reads: the sum runs over **all** H × W = E × A pixels, with the labels D clamped
+//!   to `[r_min, r_max]` (a ray that meets nothing reads r_max) ([`Metrics::mae`]; this is the
+//!   figure comparable with the paper's Table I). The mean over the ground-truth mask only
+//!   (in-window pixels) is reported alongside ([`Metrics::mae_masked`]), so that neither
+//!   reading is hidden.
+//! - CD = γ · (mean over p ∈ P of min over q ∈ Q of ‖p − q‖² + mean over q ∈ Q of min over
+//!   p ∈ P of ‖p − q‖²) with γ = 500, in m² × 500: the symmetric chamfer distance between the
+//!   point clouds of the two maps. Both clouds take the pixels of the same (ground-truth) mask,
+//!   converted through `epssn::geometry::polar_to_cartesian`; nearest neighbours come from a
+//!   `kiddo` k-d tree.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{ensure, Context, Result};
+use epssn::config::{
+    DEPTH_COLUMNS, DEPTH_LEN, DEPTH_ROWS, DEPTH_ROW_ELEVATION_RAD, INPUT_COLUMN_AZIMUTH_RAD,
+    R_MAX_M, R_MIN_M,
+};
+use epssn::geometry::{polar_to_cartesian, Polar};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use serde::Serialize;
+
+/// β of the paper's MAE.
+pub const MAE_SCALE: f64 = 1000.0;
+/// γ of the paper's CD.
+pub const CD_SCALE: f64 = 500.0;
+
+/// Metrics of one predicted depth map against its ground truth.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Metrics {
+    /// The paper's MAE: over every pixel, labels clamped to the window, mm.
+    pub mae: f64,
+    /// MAE over the ground-truth mask only, mm (NaN for an empty mask).
+    pub mae_masked: f64,
+    /// The paper's chamfer distance (γ = 500), over the masked pixels' points.
+    pub cd: f64,
+    /// Pixels in the mask.
+    pub valid_pixels: usize,
+    /// Pixels in the map.
+    pub pixels: usize,
+}
+
+/// Mean and (population) standard deviation of per-sample figures, as the paper reports them;
+/// `None` for no values.
+pub fn mean_std(v: &[f64]) -> (Option<f64>, Option<f64>) {
+    if v.is_empty() {
+        return (None, None);
+    }
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    let s = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt();
+    (Some(m), Some(s))
+}
+
+/// `β / n · Σ |a − b|` over the pixels where `mask` is set (all pixels without a mask).
+/// NaN when no pixel counts.
+pub fn mae(pred: &[f32], gt: &[f32], mask: Option<&[bool]>) -> Result<f64> {
+    ensure!(
+        pred.len() == gt.len(),
+        "MAE: prediction has {} pixels, ground truth {}",
+        pred.len(),
+        gt.len()
+    );
+    if let Some(m) = mask {
+        ensure!(m.len() == gt.len(), "MAE: mask size differs from the map");
+    }
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for i in 0..gt.len() {
+        if mask.is_none_or(|m| m[i]) {
+            sum += (pred[i] as f64 - gt[i] as f64).abs();
+            n += 1;
+        }
+    }
+    Ok(if n == 0 {
+        f64::NAN
+    } else {
+        MAE_SCALE * sum / n as f64
+    })
+}
+
+/// Symmetric chamfer distance `γ · (mean_p min_q ‖p−q‖² + mean_q min_p ‖p−q‖²)`.
+/// 0 for two empty clouds, NaN when exactly one is empty.
+pub fn chamfer(a: &[[f64; 3]], b: &[[f64; 3]]) -> Result<f64> {
+    match (a.is_empty(), b.is_empty()) {
+        (true, true) => return Ok(0.0),
+        (true, false) | (false, true) => return Ok(f64::NAN),
+        _ => {}
+    }
+    Ok(CD_SCALE * (mean_nearest_sq(a, b)? + mean_nearest_sq(b, a)?))
+}
+
+/// Mean over `from` of the squared distance to the nearest point of `to` (non-empty).
+fn mean_nearest_sq(from: &[[f64; 3]], to: &[[f64; 3]]) -> Result<f64> {
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(to)
+        .map_err(|e| anyhow::anyhow!("building the k-d tree: {e:?}"))?;
+    let sum: f64 = from
+        .iter()
+        .map(|p| {
+            tree.query(p)
+                .nearest_one::<SquaredEuclidean<f64>>()
+                .execute()
+                .distance
+        })
+        .sum();
+    Ok(sum / from.len() as f64)
+}
+
+/// Points (sonar frame, metres) of the pixels of an E × A depth map where `mask` is set.
+pub fn depth_points(depth: &[f32], mask: &[bool]) -> Result<Vec<[f64; 3]>> {
+    ensure!(
+        depth.len() == DEPTH_LEN && mask.len() == DEPTH_LEN,
+        "depth map must have {DEPTH_ROWS} × {DEPTH_COLUMNS} = {DEPTH_LEN} pixels (got {}, mask {})",
+        depth.len(),
+        mask.len()
+    );
+    let mut pts = Vec::new();
+    for (e, &elevation) in DEPTH_ROW_ELEVATION_RAD.iter().enumerate() {
+        for (a, &azimuth) in INPUT_COLUMN_AZIMUTH_RAD.iter().enumerate() {
+            let i = e * DEPTH_COLUMNS + a;
+            if mask[i] {
+                pts.push(polar_to_cartesian(Polar {
+                    range: depth[i] as f64,
+                    azimuth,
+                    elevation,
+                }));
+            }
+        }
+    }
+    Ok(pts)
+}
+
+/// Mask derived from a ground-truth map when none is given: pixels strictly inside the window
+/// (a label of exactly r_min or r_max means "nearer" or "nothing").
+pub fn derived_mask(gt: &[f32]) -> Vec<bool> {
+    gt.iter()
+        .map(|&d| (d as f64) > R_MIN_M && (d as f64) < R_MAX_M)
+        .collect()
+}
+
+/// Accuracy of one model over a set of depth maps: each figure's mean and (population)
+/// standard deviation over the maps (NaN figures of a map, e.g. an empty mask, are left out).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Accuracy {
+    /// Maps scored.
+    pub maps: usize,
+    /// Mean of the paper's MAE (all pixels, labels clamped), mm.
+    pub mae: Option<f64>,
+    /// Its standard deviation.
+    pub mae_std: Option<f64>,
+    /// Mean of the MAE over the ground-truth mask, mm.
+    pub mae_masked: Option<f64>,
+    /// Its standard deviation.
+    pub mae_masked_std: Option<f64>,
+    /// Mean of the paper's chamfer distance.
+    pub cd: Option<f64>,
+    /// Its standard deviation.
+    pub cd_std: Option<f64>,
+}
+
+impl Accuracy {
+    /// Mean and standard deviation of every figure of `ms`.
+    pub fn of(ms: &[Metrics]) -> Self {
+        let stat = |f: fn(&Metrics) -> f64| {
+            mean_std(
+                &ms.iter()
+                    .map(f)
+                    .filter(|x| x.is_finite())
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let (mae, mae_std) = stat(|m| m.mae);
+        let (mae_masked, mae_masked_std) = stat(|m| m.mae_masked);
+        let (cd, cd_std) = stat(|m| m.cd);
+        Self {
+            maps: ms.len(),
+            mae,
+            mae_std,
+            mae_masked,
+            mae_masked_std,
+            cd,
+            cd_std,
+        }
+    }
+
+    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s`.
+    pub fn line(&self) -> String {
+        let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
+        if self.mae.is_none() {
+            return "no ground truth".to_string();
+        }
+        format!(
+            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {}",
+            f(self.mae, 2),
+            f(self.mae_std, 2),
+            f(self.mae_masked, 2),
+            f(self.mae_masked_std, 2),
+            f(self.cd, 4),
+            f(self.cd_std, 4)
+        )
+    }
+}
+
+/// Labels clamped to the range window, as the paper's loss and MAE read them.
+pub fn clamp_labels(gt: &[f32]) -> Vec<f32> {
+    gt.iter()
+        .map(|&d| d.clamp(R_MIN_M as f32, R_MAX_M as f32))
+        .collect()
+}
+
+/// MAE (all pixels and masked, labels clamped) and CD of `pred` against `gt` over `mask`.
+pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
+    let gt = clamp_labels(gt);
+    let mae_masked = mae(pred, &gt, Some(mask))?;
+    let mae_all = mae(pred, &gt, None)?;
+    let cd = chamfer(&depth_points(pred, mask)?, &depth_points(&gt, mask)?)?;
+    Ok(Metrics {
+        mae: mae_all,
+        mae_masked,
+        cd,
+        valid_pixels: mask.iter().filter(|m| **m).count(),
+        pixels: gt.len(),
+    })
+}
+
+/// Writes an ASCII PLY point cloud (MeshLab opens it), optionally coloured.
+pub fn write_ply(path: &Path, points: &[[f64; 3]], colour: Option<[u8; 3]>) -> Result<()> {
+    let mut s = String::new();
+    s.push_str("ply\nformat ascii 1.0\ncomment epssn host-sim, sonar frame: x forward, y left, z up, metres\n");
+    s.push_str(&format!("element vertex {}\n", points.len()));
+    s.push_str("property float x\nproperty float y\nproperty float z\n");
+    if colour.is_some() {
+        s.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+    }
+    s.push_str("end_header\n");
+    for p in points {
+        s.push_str(&format!("{:.6} {:.6} {:.6}", p[0], p[1], p[2]));
+        if let Some(c) = colour {
+            s.push_str(&format!(" {} {} {}", c[0], c[1], c[2]));
+        }
+        s.push('\n');
+    }
+    std::fs::File::create(path)
+        .and_then(|mut f| f.write_all(s.as_bytes()))
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// `host-sim metrics`: compare two depth maps.
+#[derive(clap::Args, Debug)]
+pub struct MetricsArgs {
+    /// Predicted depth map (.npy float32, E × A metres).
+    pub pred: PathBuf,
+    /// Ground-truth depth map (.npy float32, E × A metres).
+    pub gt: PathBuf,
+    /// Mask (.npy float32 0/1); default: ground-truth pixels strictly inside the window.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the predicted map's masked points as PLY.
+    #[arg(long)]
+    pub ply_pred: Option<PathBuf>,
+    /// Also write the ground truth's masked points as PLY.
+    #[arg(long)]
+    pub ply_gt: Option<PathBuf>,
+}
+
+/// Runs `host-sim metrics`.
+pub fn run(args: &MetricsArgs) -> Result<()> {
+    let pred = epssn_aris::npy::read_f32(&args.pred)?.data;
+    let gt = epssn_aris::npy::read_f32(&args.gt)?.data;
+    let mask = match &args.mask {
+        Some(p) => epssn_aris::npy::read_f32(p)?
+            .data
+            .iter()
+            .map(|v| *v > 0.5)
+            .collect(),
+        None => derived_mask(&gt),
+    };
+    let m = evaluate(&pred, &gt, &mask)?;
+    if let Some(p) = &args.ply_pred {
+        write_ply(p, &depth_points(&pred, &mask)?, Some([230, 80, 40]))?;
+    }
+    if let Some(p) = &args.ply_gt {
+        write_ply(p, &depth_points(&gt, &mask)?, Some([40, 140, 230]))?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&m)?);
+    } else {
+        println!(
+            "MAE {:.3} mm (paper: all {} pixels, labels clamped; masked, {} pixels: {:.3} mm)   CD {:.5}",
+            m.mae, m.pixels, m.valid_pixels, m.mae_masked, m.cd
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mae_by_hand() {
+        // 2 × 2 maps: errors 0.01, 0.02, 0, 0.1 m.
+        let gt = [2.0f32, 2.5, 3.0, 3.5];
+        let pred = [2.01f32, 2.48, 3.0, 3.4];
+        let all = mae(&pred, &gt, None).unwrap();
+        assert!((all - 1000.0 * 0.13 / 4.0).abs() < 1e-3, "{all}");
+        let m = mae(&pred, &gt, Some(&[true, true, false, false])).unwrap();
+        assert!((m - 1000.0 * 0.03 / 2.0).abs() < 1e-3, "{m}");
+        assert!(mae(&pred, &gt, Some(&[false; 4])).unwrap().is_nan());
+        assert!(mae(&pred[..3], &gt, None).is_err());
+    }
+
+    #[test]
+    fn chamfer_by_hand() {
+        // A = {(0,0,0), (1,0,0)}, B = {(0,0,0.1)}.
+        // A→B: 0.01 and 1 + 0.01 = 1.01, mean 0.51. B→A: 0.01. CD = 500 · 0.52 = 260.
+        let a = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]];
+        let b = [[0.0, 0.0, 0.1]];
+        assert!((chamfer(&a, &b).unwrap() - 260.0).abs() < 1e-9);
+        assert!((chamfer(&b, &a).unwrap() - 260.0).abs() < 1e-9);
+        assert_eq!(chamfer(&a, &a).unwrap(), 0.0);
+        assert!(chamfer(&a, &[]).unwrap().is_nan());
+    }
+
+    #[test]
+    fn points_follow_the_geometry_module() {
+        let mut depth = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut mask = vec![false; DEPTH_LEN];
+        let (e, a) = (3, 40);
+        depth[e * DEPTH_COLUMNS + a] = 2.5;
+        mask[e * DEPTH_COLUMNS + a] = true;
+        let pts = depth_points(&depth, &mask).unwrap();
+        assert_eq!(pts.len(), 1);
+        let p = epssn::geometry::cartesian_to_polar(pts[0]);
+        assert!((p.range - 2.5).abs() < 1e-6);
+        assert!((p.azimuth - INPUT_COLUMN_AZIMUTH_RAD[a]).abs() < 1e-9);
+        assert!((p.elevation - DEPTH_ROW_ELEVATION_RAD[e]).abs() < 1e-9);
+        // A shifted map: every point moves radially by 0.01 m, so CD = 500 · 2 · 0.0001.
+        let shifted: Vec<f32> = depth.iter().map(|d| d + 0.01).collect();
+        let m = evaluate(&shifted, &depth, &mask).unwrap();
+        assert!((m.cd - 0.1).abs() < 1e-4, "{}", m.cd);
+        assert!((m.mae - 10.0).abs() < 1e-3);
+        assert!((m.mae_masked - 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn paper_mae_clamps_labels_and_counts_every_pixel() {
+        // Two pixels: one in the window (error 0.1 m), one whose label lies beyond r_max
+        // (a ray that meets nothing), predicted at r_max: no error once the label is clamped.
+        let gt = [2.5f32, 9.0];
+        let pred = [2.6f32, R_MAX_M as f32];
+        let mut depth = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut label = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut mask = vec![false; DEPTH_LEN];
+        depth[..2].copy_from_slice(&pred);
+        label[..2].copy_from_slice(&gt);
+        mask[0] = true;
+        let m = evaluate(&depth, &label, &mask).unwrap();
+        assert!((m.mae_masked - 100.0).abs() < 1e-3, "{}", m.mae_masked);
+        assert!((m.mae - 100.0 / DEPTH_LEN as f64).abs() < 1e-4, "{}", m.mae);
+    }
+
+    #[test]
+    fn ply_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.ply");
+        write_ply(&p, &[[1.0, 2.0, 3.0]], Some([1, 2, 3])).unwrap();
+        let s = std::fs::read_to_string(&p).unwrap();
+        assert!(s.starts_with("ply\nformat ascii 1.0\n"));
+        assert!(s.contains("element vertex 1\n"));
+        assert!(s.ends_with("end_header\n1.000000 2.000000 3.000000 1 2 3\n"));
+    }
+}

@@ -1,0 +1,219 @@
+//! `host-sim simulate`: draws scenes, renders every view as a one-frame ARIS 3000 recording,
+//! computes the ground truth and writes the sample folders (format in docs/SIMULATOR.md):
+//!
+//! ```text
+//! DIR/<split>/<000000>/view0.aris view1.aris [view2.aris]
+//!                      polar_view0.npy … depth.npy mask.npy elevation.npy scene.json
+//!                      preview.png (unless --no-preview)
+//! DIR/<split>/sim_params.json   the SonarSimParams used
+//! ```
+//!
+//! Each sample's randomness derives from (seed, scene kind, split, index) only, so the output is
+//! byte-identical for the same arguments whatever the thread count.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{ensure, Context, Result};
+use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS, INPUT_COLUMNS, INPUT_RANGE_BINS, MAX_VIEWS};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+
+use crate::groundtruth::{elevation_map, front_depth, polar_image};
+use crate::render::{frame_header, render_view, SonarSimParams};
+use crate::scene::{generate, Scene, SceneKind, Split, World};
+use epssn_aris::aris::write_recording;
+
+/// Everything written for one sample.
+#[derive(Clone, Debug)]
+pub struct SampleData {
+    /// The scene.
+    pub scene: Scene,
+    /// Per view, the ARIS frame (`samples[sample × 128 + beam]`).
+    pub frames: Vec<Vec<u8>>,
+    /// Per view, the model's polar input (R × B).
+    pub polar_views: Vec<Vec<u8>>,
+    /// Front depth map of the reference view (E × A metres).
+    pub depth: Vec<f32>,
+    /// Its mask (0/1).
+    pub mask: Vec<f32>,
+    /// Elevation map of the reference polar image (R × B radians, NaN where nothing returns).
+    pub elevation: Vec<f32>,
+}
+
+/// Renders and labels a scene.
+pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleData> {
+    ensure!(
+        (1..=MAX_VIEWS).contains(&scene.view_rolls_deg.len()),
+        "a scene needs 1 to {MAX_VIEWS} views, this one has {}",
+        scene.view_rolls_deg.len()
+    );
+    let world = World::new(scene);
+    let mut frames = Vec::new();
+    let mut polar_views = Vec::new();
+    let mut elevation = Vec::new();
+    for k in 0..scene.view_rolls_deg.len() {
+        let view = render_view(scene, &world, k, params);
+        if k == 0 {
+            elevation = elevation_map(&view, params);
+        }
+        polar_views.push(polar_image(&view.samples, params)?);
+        frames.push(view.samples);
+    }
+    let (depth, mask) = front_depth(scene, &world, 0);
+    Ok(SampleData {
+        scene: scene.clone(),
+        frames,
+        polar_views,
+        depth: depth.iter().map(|d| *d as f32).collect(),
+        mask: mask.iter().map(|m| if *m { 1.0 } else { 0.0 }).collect(),
+        elevation,
+    })
+}
+
+/// Writes one frame as a one-frame ARIS 3000 recording with the view's roll in SonarRoll and
+/// RollAbsPosition.
+pub fn write_aris(path: &Path, frame: &[u8], roll_deg: f64, params: &SonarSimParams) -> Result<()> {
+    let header = frame_header(params, roll_deg)?;
+    write_recording(path, &[(&header, frame)])?;
+    Ok(())
+}
+
+fn to_f32(v: &[u8]) -> Vec<f32> {
+    v.iter().map(|x| *x as f32).collect()
+}
+
+/// Writes a sample folder.
+pub fn write_sample(
+    dir: &Path,
+    s: &SampleData,
+    params: &SonarSimParams,
+    preview: bool,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for (k, frame) in s.frames.iter().enumerate() {
+        write_aris(
+            &dir.join(format!("view{k}.aris")),
+            frame,
+            s.scene.view_rolls_deg[k],
+            params,
+        )?;
+    }
+    let polar_shape = [INPUT_RANGE_BINS, INPUT_COLUMNS];
+    for (k, p) in s.polar_views.iter().enumerate() {
+        epssn_aris::npy::write_f32(
+            &dir.join(format!("polar_view{k}.npy")),
+            &polar_shape,
+            &to_f32(p),
+        )?;
+    }
+    let depth_shape = [DEPTH_ROWS, DEPTH_COLUMNS];
+    epssn_aris::npy::write_f32(&dir.join("depth.npy"), &depth_shape, &s.depth)?;
+    epssn_aris::npy::write_f32(&dir.join("mask.npy"), &depth_shape, &s.mask)?;
+    epssn_aris::npy::write_f32(&dir.join("elevation.npy"), &polar_shape, &s.elevation)?;
+    std::fs::write(
+        dir.join("scene.json"),
+        serde_json::to_string_pretty(&s.scene)? + "\n",
+    )
+    .with_context(|| format!("writing {}/scene.json", dir.display()))?;
+    if preview {
+        let img = crate::preview::sample_preview(&s.polar_views, &s.depth, &s.mask);
+        crate::preview::save_png(&img, &dir.join("preview.png"))?;
+    }
+    Ok(())
+}
+
+/// Folder of sample `index` under `root/<split>/`.
+pub fn sample_dir(root: &Path, split: Split, index: u64) -> PathBuf {
+    root.join(split.name()).join(format!("{index:06}"))
+}
+
+/// `host-sim simulate`.
+#[derive(clap::Args, Debug)]
+pub struct SimulateArgs {
+    /// Scene family.
+    #[arg(long, value_enum)]
+    pub scene: SceneKind,
+    /// Number of samples; default: the paper's size of the split (artificial 4000/2000,
+    /// terrain 1000/1000, sphere 1000/500).
+    #[arg(long)]
+    pub pairs: Option<usize>,
+    /// Dataset seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output root; samples go to `OUT/<split>/<000000>/`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Split.
+    #[arg(long, value_enum, default_value_t = Split::Train)]
+    pub split: Split,
+    /// Views per sample, reference included (2 or 3).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=3))]
+    pub views: u8,
+    /// Skip the PNG previews.
+    #[arg(long)]
+    pub no_preview: bool,
+    /// SonarSimParams as JSON (missing fields keep their defaults); default: the defaults.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
+}
+
+/// Runs `host-sim simulate`.
+pub fn run(args: &SimulateArgs) -> Result<()> {
+    let (train, test) = args.scene.paper_split_sizes();
+    let pairs = args.pairs.unwrap_or(match args.split {
+        Split::Train => train,
+        Split::Test => test,
+    });
+    let params: SonarSimParams = match &args.params {
+        Some(p) => serde_json::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("parsing {}", p.display()))?,
+        None => SonarSimParams::default(),
+    };
+    ensure!(
+        params.samples_per_beam > 0 && params.sample_period_us > 0,
+        "sim params: samples_per_beam and sample_period_us must be positive"
+    );
+    let split_dir = args.out.join(args.split.name());
+    std::fs::create_dir_all(&split_dir)
+        .with_context(|| format!("creating {}", split_dir.display()))?;
+    std::fs::write(
+        split_dir.join("sim_params.json"),
+        serde_json::to_string_pretty(&params)? + "\n",
+    )?;
+    let pb = ProgressBar::new(pairs as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} samples  {elapsed_precise} eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let start = std::time::Instant::now();
+    let done = AtomicUsize::new(0);
+    (0..pairs as u64)
+        .into_par_iter()
+        .try_for_each(|i| -> Result<()> {
+            let scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
+            let data = simulate_scene(&scene, &params)?;
+            write_sample(
+                &sample_dir(&args.out, args.split, i),
+                &data,
+                &params,
+                !args.no_preview,
+            )?;
+            done.fetch_add(1, Ordering::Relaxed);
+            pb.inc(1);
+            Ok(())
+        })?;
+    pb.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    eprintln!(
+        "wrote {} {:?} samples to {} in {:.2} s ({:.1} samples/s)",
+        done.load(Ordering::Relaxed),
+        args.scene,
+        split_dir.display(),
+        secs,
+        pairs as f64 / secs.max(1e-9)
+    );
+    Ok(())
+}

@@ -1,0 +1,142 @@
+//! Files: the one spec loader and the one beam-table parser (`std` feature).
+
+use std::format;
+use std::path::{Path, PathBuf};
+use std::string::String;
+use std::vec::Vec;
+
+use crate::spec::ModelSpec;
+
+/// A model spec read from its file.
+#[derive(Clone, Debug)]
+pub struct LoadedSpec {
+    /// The parsed spec.
+    pub spec: ModelSpec,
+    /// CRC-32 of the file's bytes ([`crate::crc32::crc32`]): weight blobs and manifests record
+    /// it, so a blob can never run against another spec.
+    pub hash: u32,
+}
+
+/// Parses a model spec from its JSON bytes.
+pub fn parse_spec(bytes: &[u8]) -> Result<ModelSpec, String> {
+    serde_json::from_slice(bytes).map_err(|e| format!("model spec is not valid: {e}"))
+}
+
+/// Reads and parses the model spec at `path`, with its hash.
+pub fn load_spec(path: &Path) -> Result<LoadedSpec, String> {
+    let bytes = std::fs::read(path)
+        .map_err(|e| format!("cannot read model spec {}: {e}", path.display()))?;
+    let spec = parse_spec(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(LoadedSpec {
+        spec,
+        hash: crate::crc32::crc32(&bytes),
+    })
+}
+
+/// The bundled beam-table file of a table name: `<root>/data/aris-beam-widths/<name>.csv`.
+pub fn beam_table_path(root: &Path, name: &str) -> PathBuf {
+    root.join("data/aris-beam-widths")
+        .join(format!("{name}.csv"))
+}
+
+/// One ARIS beam-angle table: per beam, the centre and the two edges, in degrees.
+///
+/// Beam 0 is the right-most beam (negative angle); the centres ascend with the beam index.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BeamTable {
+    /// Table name as in the SDK, e.g. `ARIS3000_128`.
+    pub name: String,
+    /// Beam centre angles, degrees, ascending.
+    pub centre_deg: Vec<f64>,
+    /// Left edge of each beam, degrees (as published).
+    pub left_deg: Vec<f64>,
+    /// Right edge of each beam, degrees (as published).
+    pub right_deg: Vec<f64>,
+}
+
+impl BeamTable {
+    /// Number of beams.
+    pub fn beams(&self) -> usize {
+        self.centre_deg.len()
+    }
+
+    /// Beam centres in radians, ascending (beam 0 first, right-most, negative).
+    pub fn centres_rad(&self) -> Vec<f64> {
+        self.centre_deg
+            .iter()
+            .map(|&d| crate::geometry::deg_to_rad(d))
+            .collect()
+    }
+
+    /// (first, last) beam centre, degrees.
+    pub fn centre_span_deg(&self) -> (f64, f64) {
+        (
+            self.centre_deg.first().copied().unwrap_or(f64::NAN),
+            self.centre_deg.last().copied().unwrap_or(f64::NAN),
+        )
+    }
+}
+
+/// Parses one table's CSV (`beam,center_deg,left_deg,right_deg` with a header line).
+///
+/// Checks that beams are numbered 0, 1, 2, … and that the centres strictly ascend, because
+/// the resampler relies on both.
+pub fn parse_beam_table(name: &str, csv: &str) -> Result<BeamTable, String> {
+    let mut table = BeamTable {
+        name: name.into(),
+        centre_deg: Vec::new(),
+        left_deg: Vec::new(),
+        right_deg: Vec::new(),
+    };
+    for (line_no, line) in csv.lines().enumerate().skip(1) {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        if fields.len() != 4 {
+            return Err(format!(
+                "{name}: line {}: expected 4 fields, found {}",
+                line_no + 1,
+                fields.len()
+            ));
+        }
+        let beam: usize = fields[0]
+            .parse()
+            .map_err(|e| format!("{name}: line {}: beam index: {e}", line_no + 1))?;
+        if beam != table.centre_deg.len() {
+            return Err(format!(
+                "{name}: line {}: beam {beam} out of order (expected {})",
+                line_no + 1,
+                table.centre_deg.len()
+            ));
+        }
+        let mut angles = [0.0f64; 3];
+        for (slot, text) in angles.iter_mut().zip(&fields[1..]) {
+            *slot = text
+                .parse()
+                .map_err(|e| format!("{name}: line {}: angle {text:?}: {e}", line_no + 1))?;
+            if !slot.is_finite() {
+                return Err(format!("{name}: line {}: angle is not finite", line_no + 1));
+            }
+        }
+        table.centre_deg.push(angles[0]);
+        table.left_deg.push(angles[1]);
+        table.right_deg.push(angles[2]);
+    }
+    if table.centre_deg.len() < 2 {
+        return Err(format!("{name}: fewer than two beams"));
+    }
+    if table.centre_deg.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(format!("{name}: beam centres do not strictly ascend"));
+    }
+    Ok(table)
+}
+
+/// Reads and parses the bundled beam table `name` below the repository `root`.
+pub fn load_beam_table(root: &Path, name: &str) -> Result<BeamTable, String> {
+    let path = beam_table_path(root, name);
+    let csv = std::fs::read_to_string(&path)
+        .map_err(|e| format!("cannot read beam table {}: {e}", path.display()))?;
+    parse_beam_table(name, &csv)
+}

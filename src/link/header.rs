@@ -1,0 +1,115 @@
+//! The JSON header of a link message and the error codes it carries.
+
+use serde::{Deserialize, Serialize};
+
+use super::MAX_SOURCES;
+
+/// The JSON header as on the wire: every field but `t` and `seq` is optional and only the
+/// fields of the message type are written.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Header<'a> {
+    /// Message type, one of [`kind`](super::kind).
+    pub t: &'a str,
+    /// Sequence number: strictly increasing per direction.
+    pub seq: u32,
+    /// Frame: roll of the sonar, degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roll: Option<f32>,
+    /// Frame: range bins of the polar image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub r: Option<u32>,
+    /// Frame: beam columns of the polar image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub b: Option<u32>,
+    /// Payload bytes (absent = 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub len: Option<u32>,
+    /// Depth: `seq` of the reference frame.
+    #[serde(default, rename = "ref", skip_serializing_if = "Option::is_none")]
+    pub reference: Option<u32>,
+    /// Depth: `seq`s of the source frames, view 1 first.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub src: Option<heapless::Vec<u32, MAX_SOURCES>>,
+    /// Depth: instructions spent computing the map.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instr: Option<u32>,
+    /// Status: frames accepted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<u32>,
+    /// Status: depth maps sent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depths: Option<u32>,
+    /// Status: errors replied.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub errors: Option<u32>,
+    /// Status: stack high-water mark, bytes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stack: Option<u32>,
+    /// Status: feature maps cached for pairing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cached: Option<u32>,
+    /// Error: [`ErrorCode`] number.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub code: Option<u16>,
+    /// Error: short text.
+    #[serde(default, borrow, skip_serializing_if = "Option::is_none")]
+    pub msg: Option<&'a str>,
+}
+
+/// Error codes of error messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorCode {
+    /// Bytes before a sync pattern were skipped.
+    BadSync = 1,
+    /// Header length over [`MAX_HEADER_LEN`](super::MAX_HEADER_LEN) (or zero).
+    HeaderTooLong = 2,
+    /// The header is not valid JSON of the expected shape, or a field is missing or invalid.
+    BadJson = 3,
+    /// CRC mismatch.
+    BadCrc = 4,
+    /// Payload length over [`MAX_PAYLOAD_LEN`](super::MAX_PAYLOAD_LEN).
+    Oversized = 5,
+    /// Unknown message type.
+    UnknownType = 6,
+    /// Frame dimensions differ from the compiled configuration.
+    WrongGeometry = 7,
+    /// `seq` not greater than the previous message's.
+    OutOfOrder = 8,
+    /// Payload length inconsistent with the message type.
+    BadLength = 9,
+    /// A valid message the receiver does not accept (e.g. a depth map sent to the device).
+    Unexpected = 10,
+    /// Inference failed on the device.
+    Model = 11,
+    /// The line went idle inside a message.
+    Truncated = 12,
+}
+
+impl ErrorCode {
+    /// Every code, for lookups.
+    pub const ALL: [ErrorCode; 12] = [
+        ErrorCode::BadSync,
+        ErrorCode::HeaderTooLong,
+        ErrorCode::BadJson,
+        ErrorCode::BadCrc,
+        ErrorCode::Oversized,
+        ErrorCode::UnknownType,
+        ErrorCode::WrongGeometry,
+        ErrorCode::OutOfOrder,
+        ErrorCode::BadLength,
+        ErrorCode::Unexpected,
+        ErrorCode::Model,
+        ErrorCode::Truncated,
+    ];
+
+    /// The number on the wire.
+    pub fn code(self) -> u16 {
+        self as u16
+    }
+
+    /// The code of a wire number.
+    pub fn from_code(code: u16) -> Option<Self> {
+        Self::ALL.iter().copied().find(|c| c.code() == code)
+    }
+}

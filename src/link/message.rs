@@ -1,0 +1,252 @@
+//! Link messages as typed values: status, depth data, [`Message`], payloads.
+
+use core::fmt;
+
+use fixed::types::U16F16;
+
+use crate::config;
+
+use super::header::Header;
+use super::{kind, MAX_ERROR_TEXT, MAX_SOURCES};
+
+/// Short error text for an error message: `Display` of `e`, cut to [`MAX_ERROR_TEXT`].
+pub fn error_text(e: &impl fmt::Display) -> heapless::String<MAX_ERROR_TEXT> {
+    struct Cut(heapless::String<MAX_ERROR_TEXT>);
+    impl fmt::Write for Cut {
+        fn write_str(&mut self, s: &str) -> fmt::Result {
+            for c in s.chars() {
+                // Full: drop the rest rather than fail the whole message.
+                if self.0.push(c).is_err() {
+                    break;
+                }
+            }
+            Ok(())
+        }
+    }
+    let mut cut = Cut(heapless::String::new());
+    let _ = fmt::write(&mut cut, format_args!("{e}"));
+    cut.0
+}
+
+/// Device counters carried by a status message.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Frames accepted.
+    pub frames: u32,
+    /// Depth maps sent.
+    pub depth_maps: u32,
+    /// Error replies sent.
+    pub errors: u32,
+    /// Stack high-water mark, bytes.
+    pub stack_high_water: u32,
+    /// Feature maps cached for pairing.
+    pub cached: u32,
+}
+
+/// A depth map payload: values to send, or received little-endian bytes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DepthData<'a> {
+    /// `config::DEPTH_LEN` values, to encode.
+    Values(&'a [U16F16]),
+    /// Received payload, `config::DEPTH_LEN` × u32 LE.
+    Bytes(&'a [u8]),
+}
+
+impl DepthData<'_> {
+    /// Values in the payload.
+    pub fn len(&self) -> usize {
+        match self {
+            DepthData::Values(v) => v.len(),
+            DepthData::Bytes(b) => b.len() / 4,
+        }
+    }
+
+    /// True without values.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Value `i`, if present.
+    pub fn get(&self, i: usize) -> Option<U16F16> {
+        match self {
+            DepthData::Values(v) => v.get(i).copied(),
+            DepthData::Bytes(b) => {
+                let at = i.checked_mul(4)?;
+                let w = b.get(at..at.checked_add(4)?)?;
+                Some(U16F16::from_bits(u32::from_le_bytes([
+                    w[0], w[1], w[2], w[3],
+                ])))
+            }
+        }
+    }
+
+    /// Copies the values into `out` (same length), or returns false.
+    pub fn copy_to(&self, out: &mut [U16F16]) -> bool {
+        if out.len() != self.len() {
+            return false;
+        }
+        for (i, o) in out.iter_mut().enumerate() {
+            match self.get(i) {
+                Some(v) => *o = v,
+                None => return false,
+            }
+        }
+        true
+    }
+}
+
+/// A typed message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Message<'a> {
+    /// Host → device: a polar image (`config::INPUT_LEN` bytes, `img[i · B + k]`).
+    Frame {
+        /// Sequence number.
+        seq: u32,
+        /// Sonar roll, degrees.
+        roll_deg: f32,
+        /// The image.
+        image: &'a [u8],
+    },
+    /// Device → host: a depth map.
+    Depth {
+        /// Sequence number.
+        seq: u32,
+        /// `seq` of the reference frame.
+        reference: u32,
+        /// `seq`s of the source frames (view 1 first).
+        sources: heapless::Vec<u32, MAX_SOURCES>,
+        /// Instructions spent: the newest frame's features plus the depth map.
+        instructions: u32,
+        /// The map, `config::DEPTH_LEN` values, `[E][A]`, metres.
+        depth: DepthData<'a>,
+    },
+    /// Host → device: status request.
+    StatusRequest {
+        /// Sequence number.
+        seq: u32,
+    },
+    /// Device → host: status reply.
+    Status {
+        /// Sequence number.
+        seq: u32,
+        /// The counters.
+        status: Status,
+    },
+    /// Device → host: a rejected message.
+    Error {
+        /// Sequence number.
+        seq: u32,
+        /// [`ErrorCode`](super::ErrorCode) number.
+        code: u16,
+        /// Short text.
+        msg: &'a str,
+    },
+    /// Host → device: stop serving.
+    Shutdown {
+        /// Sequence number.
+        seq: u32,
+    },
+}
+
+impl Message<'_> {
+    /// The sequence number.
+    pub fn seq(&self) -> u32 {
+        match self {
+            Message::Frame { seq, .. }
+            | Message::Depth { seq, .. }
+            | Message::StatusRequest { seq }
+            | Message::Status { seq, .. }
+            | Message::Error { seq, .. }
+            | Message::Shutdown { seq } => *seq,
+        }
+    }
+
+    /// The type string on the wire.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Message::Frame { .. } => kind::FRAME,
+            Message::Depth { .. } => kind::DEPTH,
+            Message::StatusRequest { .. } => kind::STATUS_REQUEST,
+            Message::Status { .. } => kind::STATUS,
+            Message::Error { .. } => kind::ERROR,
+            Message::Shutdown { .. } => kind::SHUTDOWN,
+        }
+    }
+
+    /// Header and payload of the message.
+    pub fn to_parts(&self) -> (Header<'_>, Payload<'_>) {
+        let mut h = Header {
+            t: self.kind(),
+            seq: self.seq(),
+            ..Header::default()
+        };
+        let payload = match self {
+            Message::Frame {
+                roll_deg, image, ..
+            } => {
+                h.roll = Some(*roll_deg);
+                h.r = Some(config::INPUT_RANGE_BINS as u32);
+                h.b = Some(config::INPUT_COLUMNS as u32);
+                Payload::Bytes(image)
+            }
+            Message::Depth {
+                reference,
+                sources,
+                instructions,
+                depth,
+                ..
+            } => {
+                h.reference = Some(*reference);
+                h.src = Some(sources.clone());
+                h.instr = Some(*instructions);
+                match depth {
+                    DepthData::Values(v) => Payload::Depth(v),
+                    DepthData::Bytes(b) => Payload::Bytes(b),
+                }
+            }
+            Message::Status { status, .. } => {
+                h.frames = Some(status.frames);
+                h.depths = Some(status.depth_maps);
+                h.errors = Some(status.errors);
+                h.stack = Some(status.stack_high_water);
+                h.cached = Some(status.cached);
+                Payload::Bytes(&[])
+            }
+            Message::Error { code, msg, .. } => {
+                h.code = Some(*code);
+                h.msg = Some(msg);
+                Payload::Bytes(&[])
+            }
+            Message::StatusRequest { .. } | Message::Shutdown { .. } => Payload::Bytes(&[]),
+        };
+        if !payload.is_empty() {
+            h.len = Some(u32::try_from(payload.len()).unwrap_or(u32::MAX));
+        }
+        (h, payload)
+    }
+}
+
+/// A payload to encode.
+#[derive(Clone, Copy, Debug)]
+pub enum Payload<'a> {
+    /// Raw bytes.
+    Bytes(&'a [u8]),
+    /// Depth values, written as u32 LE bits.
+    Depth(&'a [U16F16]),
+}
+
+impl Payload<'_> {
+    /// Bytes on the wire.
+    pub fn len(&self) -> usize {
+        match self {
+            Payload::Bytes(b) => b.len(),
+            Payload::Depth(v) => v.len() * 4,
+        }
+    }
+
+    /// True when empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}

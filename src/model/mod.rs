@@ -1,0 +1,271 @@
+//! The int8 EPSSN: weights from a verified blob, one static workspace, inference.
+//!
+//! ```text
+//! u8 image ─► feature net (conv2d_s8 …) ─► features [C][H][W]      (once per frame: cacheable)
+//! reference + warped sources ─► cost_volume_s8 ─► cost [C][N][H][W]
+//! cost net (conv3d_s8, conv_transpose3d_s8 with skips in place) ─► head_soft_argmax_s8 ─► depth
+//! ```
+//!
+//! Memory: the firmware runs the *streamed* path ([`Workspace`], [`WORKSPACE_LEN`] bytes). The
+//! feature net computes [`FEATURE_CHUNKS`] row chunks per layer from line buffers (MCUNetV2
+//! style) instead of whole activations. The cost volume never exists whole: d1 reads windows
+//! of `kd` cost-volume planes × a tile of rows computed on the fly; u0 is computed one output
+//! plane at a time, its skip (a cost-volume plane, recomputed: the price is one more cost
+//! volume's instructions) written first into the plane buffer and the transposed convolution
+//! added in place; each u0 plane goes straight through the head, which is fused with the
+//! soft-argmax so the `1 × E × R × A` logits volume never exists either. Only d1/u1, d2 and m0
+//! are whole. Sub-volumes carry explicit zero rows/planes where the whole tensor has padding,
+//! which adds exactly 0, so the bits equal those of the plain whole-tensor twin
+//! ([`WholeWorkspace`], [`Model::depth_from_features_whole_probed`]) that tests compare with.
+//!
+//! Modules: `plan` (the memory plan: regions, line buffers, tiles, workspace sizes, checked at
+//! compile time), `stream` (the streamed path the firmware runs, [`Workspace`]) and `whole` (the
+//! whole-tensor twin, [`WholeWorkspace`]); this module holds the verified weights ([`Model`]).
+
+use core::ops::Range;
+
+use fixed::types::U16F16;
+
+use crate::blob::{Blob, BlobError};
+use crate::config::{self, LayerKind, LayerShape, LAYERS};
+use crate::kernels::LineScratch;
+use crate::kernels::{
+    check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
+    conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
+    conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
+    cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
+    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights, soft_argmax_s8::head_soft_argmax_s8,
+    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
+    soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
+};
+use crate::requant::Requant;
+
+mod plan;
+mod stream;
+mod whole;
+
+use plan::*;
+pub use plan::{
+    COST_BUFFER_LEN, COST_ROW_CHUNKS, FEATURE_CHUNKS, FEATURE_LAYERS, MAX_CHANNELS,
+    UNET_BUFFER_LEN, WORKSPACE_LEN,
+};
+pub use stream::Workspace;
+pub use whole::WholeWorkspace;
+
+/// The network input's zero point: int8 `q = u8 − 128`, added back by the first layer.
+pub const INPUT_OFFSET: i32 = 128;
+
+/// Why inference or model construction failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Error {
+    /// The weight blob was refused.
+    Blob(BlobError),
+    /// A kernel refused its operands (a shape or bound the model should have prevented).
+    Kernel(KernelError),
+    /// Layer `index` could overflow its int32 accumulator or its requantisation shift.
+    AccumulatorBound {
+        /// Index into [`config::LAYERS`].
+        index: usize,
+    },
+    /// A requantisation multiplier outside `[2^30, 2^31)` (and not zero).
+    BadMultiplier {
+        /// Index into [`config::LAYERS`], or `usize::MAX` for the cost volume.
+        index: usize,
+    },
+    /// Source views given: 1 or 2 are supported (`MAX_VIEWS − 1`).
+    SourceCount(usize),
+    /// An input image or feature map has the wrong length.
+    InputLength {
+        /// Expected elements.
+        expected: usize,
+        /// Elements given.
+        actual: usize,
+    },
+}
+
+impl From<BlobError> for Error {
+    fn from(e: BlobError) -> Self {
+        Error::Blob(e)
+    }
+}
+
+impl From<KernelError> for Error {
+    fn from(e: KernelError) -> Self {
+        Error::Kernel(e)
+    }
+}
+
+/// Parameters of one layer: int8 weights borrowed from the blob, the rest copied to RAM
+/// (the blob's alignment in memory is not guaranteed).
+#[derive(Clone, Copy, Debug)]
+struct LayerParams<'a> {
+    weights: &'a [i8],
+    bias: [i32; MAX_CHANNELS],
+    requant: [Requant; MAX_CHANNELS],
+    skip: Requant,
+    /// Worst-case accumulator ([`check_layer_bounds`]), verified in [`Model::from_blob`].
+    bound: i64,
+}
+
+/// A verified int8 EPSSN.
+#[derive(Clone, Debug)]
+pub struct Model<'a> {
+    layers: [LayerParams<'a>; config::LAYER_COUNT],
+    /// Cost-volume requantisation for 2 and 3 views.
+    cost: [Requant; 2],
+    exp: [u16; 256],
+}
+
+fn name_buf(layer: &str, suffix: &str) -> heapless::String<24> {
+    let mut s = heapless::String::new();
+    let _ = s.push_str(layer);
+    let _ = s.push_str(suffix);
+    s
+}
+
+fn valid_multiplier(r: Requant) -> bool {
+    r.multiplier == 0 || r.multiplier >= (1 << 30)
+}
+
+/// The tensors a blob for the compiled configuration holds, as `(name, dtype, elements)`:
+/// `<layer>.w` int8 weights (canonical layout), `<layer>.b` int32 biases, `<layer>.m` and
+/// `<layer>.s` int32 per-channel multipliers and shifts, `<layer>.k` int32 `[multiplier,
+/// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `exp` u16 `[256]`.
+pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
+    use crate::blob::Dtype;
+    for l in LAYERS.iter() {
+        f(&name_buf(l.name, ".w"), Dtype::I8, l.weight_len());
+        f(&name_buf(l.name, ".b"), Dtype::I32, l.out_channels);
+        f(&name_buf(l.name, ".m"), Dtype::I32, l.out_channels);
+        f(&name_buf(l.name, ".s"), Dtype::I32, l.out_channels);
+        if l.skip.is_some() {
+            f(&name_buf(l.name, ".k"), Dtype::I32, 2);
+        }
+    }
+    f("cost.rq", Dtype::I32, 4);
+    f("exp", Dtype::U16, 256);
+}
+
+impl<'a> Model<'a> {
+    /// Builds the model from a blob: magic, version, length, CRC-32, model-spec hash, every
+    /// tensor's dtype and size, every multiplier and every layer's worst-case accumulator are
+    /// checked; any failure is an error and nothing is half-built.
+    pub fn from_blob(bytes: &'a [u8]) -> Result<Self, Error> {
+        let blob = Blob::parse(bytes, config::SPEC_HASH)?;
+        let empty = LayerParams {
+            weights: &[],
+            bias: [0; MAX_CHANNELS],
+            requant: [Requant::default(); MAX_CHANNELS],
+            skip: Requant::default(),
+            bound: 0,
+        };
+        let mut layers = [empty; config::LAYER_COUNT];
+        for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
+            let oc = l.out_channels;
+            p.weights = blob.i8_tensor(&name_buf(l.name, ".w"), l.weight_len())?;
+            blob.read_i32(&name_buf(l.name, ".b"), &mut p.bias[..oc])?;
+            let mut m = [0i32; MAX_CHANNELS];
+            let mut s = [0i32; MAX_CHANNELS];
+            blob.read_i32(&name_buf(l.name, ".m"), &mut m[..oc])?;
+            blob.read_i32(&name_buf(l.name, ".s"), &mut s[..oc])?;
+            for o in 0..oc {
+                p.requant[o] = Requant {
+                    multiplier: m[o],
+                    shift: s[o],
+                };
+                if !valid_multiplier(p.requant[o]) || !p.requant[o].shift_in_range() {
+                    return Err(Error::BadMultiplier { index });
+                }
+            }
+            if l.skip.is_some() {
+                let mut k = [0i32; 2];
+                blob.read_i32(&name_buf(l.name, ".k"), &mut k)?;
+                p.skip = Requant {
+                    multiplier: k[0],
+                    shift: k[1],
+                };
+                // The skip input is int8, so |q| · 2^left must stay below 2^31.
+                if !valid_multiplier(p.skip) || !p.skip.shift_in_range() || !p.skip.fits(128) {
+                    return Err(Error::BadMultiplier { index });
+                }
+            }
+            let params = layer_params(l, p, index);
+            let bound = check_layer_bounds(
+                &ConvShape::from(l),
+                &params,
+                matches!(l.kind, LayerKind::ConvTranspose3d),
+            )
+            .map_err(|_| Error::AccumulatorBound { index })?;
+            if !p.requant[..oc].iter().all(|r| r.fits(bound)) {
+                return Err(Error::AccumulatorBound { index });
+            }
+            p.bound = bound;
+        }
+        let mut c = [0i32; 4];
+        blob.read_i32("cost.rq", &mut c)?;
+        let cost = [
+            Requant {
+                multiplier: c[0],
+                shift: c[1],
+            },
+            Requant {
+                multiplier: c[2],
+                shift: c[3],
+            },
+        ];
+        // X ≤ 3·3·128² < 2^18 for any int8 features.
+        if !cost
+            .iter()
+            .all(|r| valid_multiplier(*r) && r.shift_in_range() && r.fits(1 << 18))
+        {
+            return Err(Error::BadMultiplier { index: usize::MAX });
+        }
+        let mut exp = [0u16; 256];
+        blob.read_u16("exp", &mut exp)?;
+        if exp[0] == 0 {
+            return Err(Error::Blob(BlobError::ShapeMismatch));
+        }
+        Ok(Self { layers, cost, exp })
+    }
+
+    /// Layer `index`'s parameters with the accumulator bound verified in
+    /// [`Model::from_blob`], for the kernels' checked entries.
+    fn checked(&self, index: usize) -> CheckedParams<'_> {
+        let l = &LAYERS[index];
+        let p = &self.layers[index];
+        CheckedParams::verified(
+            &ConvShape::from(l),
+            layer_params(l, p, index),
+            matches!(l.kind, LayerKind::ConvTranspose3d),
+            p.bound,
+        )
+    }
+
+    fn soft(&self) -> SoftArgmaxParams<'_> {
+        SoftArgmaxParams {
+            exp: &self.exp,
+            r_min16: U16F16::from_bits(config::R_MIN_Q16),
+            step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
+            end_offset: config::END_BIN_OFFSET as u16,
+        }
+    }
+}
+
+fn layer_params<'p>(l: &LayerShape, p: &'p LayerParams<'_>, index: usize) -> ConvParams<'p> {
+    ConvParams {
+        weights: p.weights,
+        bias: &p.bias[..l.out_channels],
+        requant: &p.requant[..l.out_channels],
+        input_offset: if index == 0 { INPUT_OFFSET } else { 0 },
+        relu: l.relu,
+    }
+}
+
+fn expect_len(expected: usize, actual: usize) -> Result<(), Error> {
+    if expected == actual {
+        Ok(())
+    } else {
+        Err(Error::InputLength { expected, actual })
+    }
+}

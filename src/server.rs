@@ -1,0 +1,271 @@
+//! The link server the firmware runs: decodes messages from any `embedded_io` byte stream,
+//! pairs frames by roll, answers with depth maps, status and errors (docs/LINK.md).
+//! Board-independent: the UART comes in as `embedded_io` traits, the busy LED as an
+//! `embedded_hal` [`OutputPin`], the clock and the stack probe as closures, so host tests drive
+//! it with a mock serial line and pin.
+
+#[cfg(feature = "defmt")]
+macro_rules! log {
+    ($($t:tt)*) => { defmt::info!($($t)*) };
+}
+#[cfg(not(feature = "defmt"))]
+macro_rules! log {
+    ($($t:tt)*) => {{}};
+}
+
+use crate::config;
+use crate::link::{
+    self, encode, error_text, DecodeError, Decoder, DepthData, ErrorCode, Message, Status,
+};
+use crate::model::{Model, Workspace};
+use crate::pairing::FeatureCache;
+use embedded_hal::digital::OutputPin;
+use embedded_io::{Read, ReadReady, Write};
+use fixed::types::U16F16;
+
+/// What the server works with, all in static memory.
+pub struct Server<'a> {
+    /// The verified model.
+    pub model: &'a Model<'a>,
+    /// Inference scratch.
+    pub workspace: &'a mut Workspace,
+    /// Cached features for pairing.
+    pub cache: &'a mut FeatureCache,
+    /// The depth map being sent.
+    pub depth: &'a mut [U16F16; config::DEPTH_LEN],
+    /// Ticks of a free-running counter.
+    pub now: &'a dyn Fn() -> u32,
+    /// Instructions per tick of `now`.
+    pub instructions_per_tick: u32,
+    /// Ticks of line silence after which a partial message is abandoned.
+    pub idle_ticks: u32,
+    /// Stack high-water mark, bytes.
+    pub stack_high_water: &'a dyn Fn() -> u32,
+    /// Counters.
+    pub status: Status,
+    tx_seq: u32,
+}
+
+impl<'a> Server<'a> {
+    /// A server with zeroed counters.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        model: &'a Model<'a>,
+        workspace: &'a mut Workspace,
+        cache: &'a mut FeatureCache,
+        depth: &'a mut [U16F16; config::DEPTH_LEN],
+        now: &'a dyn Fn() -> u32,
+        instructions_per_tick: u32,
+        idle_ticks: u32,
+        stack_high_water: &'a dyn Fn() -> u32,
+    ) -> Self {
+        Self {
+            model,
+            workspace,
+            cache,
+            depth,
+            now,
+            instructions_per_tick,
+            idle_ticks,
+            stack_high_water,
+            status: Status::default(),
+            tx_seq: 0,
+        }
+    }
+
+    fn next_seq(&mut self) -> u32 {
+        self.tx_seq = self.tx_seq.wrapping_add(1);
+        self.tx_seq
+    }
+
+    fn send<W: Write>(&mut self, uart: &mut W, msg: &Message<'_>) -> Result<(), W::Error> {
+        match encode(msg, &mut |b: &[u8]| uart.write_all(b)) {
+            Ok(_) => Ok(()),
+            Err(link::EncodeError::Sink(e)) => Err(e),
+            // Our own headers always fit; nothing sensible to send otherwise.
+            Err(link::EncodeError::HeaderTooLong) => Ok(()),
+        }
+    }
+
+    fn send_error<W: Write>(
+        &mut self,
+        uart: &mut W,
+        code: ErrorCode,
+        text: &impl core::fmt::Display,
+    ) -> Result<(), W::Error> {
+        self.status.errors = self.status.errors.wrapping_add(1);
+        let msg = error_text(text);
+        let seq = self.next_seq();
+        self.send(
+            uart,
+            &Message::Error {
+                seq,
+                code: code.code(),
+                msg: msg.as_str(),
+            },
+        )
+    }
+
+    fn send_status<W: Write>(&mut self, uart: &mut W) -> Result<(), W::Error> {
+        self.status.stack_high_water = (self.stack_high_water)();
+        self.status.cached = self.cache.len() as u32;
+        let seq = self.next_seq();
+        let status = self.status;
+        self.send(uart, &Message::Status { seq, status })
+    }
+
+    /// A frame: features into the cache, then a depth map if it completes a view set, else
+    /// a status reply.
+    fn frame<W: Write, L: OutputPin>(
+        &mut self,
+        uart: &mut W,
+        led: &mut L,
+        seq: u32,
+        roll_deg: f32,
+        image: &[u8],
+    ) -> Result<(), W::Error> {
+        let _ = led.set_high();
+        let start = (self.now)();
+        let model = self.model;
+        let ws = &mut *self.workspace;
+        let inserted = self
+            .cache
+            .insert(seq, roll_deg, |f| model.features(image, ws, f));
+        let newest = match inserted {
+            Ok(f) => f,
+            Err(e) => {
+                let _ = led.set_low();
+                return self.send_error(uart, ErrorCode::Model, &Debug(e));
+            }
+        };
+        self.status.frames = self.status.frames.wrapping_add(1);
+        let Some(set) = self.cache.find(&newest, config::VIEWS) else {
+            let _ = led.set_low();
+            return self.send_status(uart);
+        };
+        // The depth map, in a block so the borrows of the cached features end before replying.
+        let computed = {
+            let mut sources: heapless::Vec<&[i8], { link::MAX_SOURCES }> = heapless::Vec::new();
+            let mut source_seqs: heapless::Vec<u32, { link::MAX_SOURCES }> = heapless::Vec::new();
+            for f in set.sources() {
+                if let Some(feats) = self.cache.features(f) {
+                    let _ = sources.push(&feats[..]);
+                    let _ = source_seqs.push(f.seq);
+                }
+            }
+            match set
+                .reference()
+                .and_then(|r| Some((r.seq, self.cache.features(r)?)))
+            {
+                Some((reference, ref_feats)) => self
+                    .model
+                    .depth_from_features(ref_feats, &sources, self.workspace, &mut self.depth[..])
+                    .map(|()| (reference, source_seqs)),
+                None => Err(crate::model::Error::SourceCount(0)),
+            }
+        };
+        let ticks = (self.now)().wrapping_sub(start);
+        let _ = led.set_low();
+        let (reference, source_seqs) = match computed {
+            Ok(x) => x,
+            Err(e) => return self.send_error(uart, ErrorCode::Model, &Debug(e)),
+        };
+        let instructions = ticks.saturating_mul(self.instructions_per_tick);
+        let seq = self.next_seq();
+        self.status.depth_maps = self.status.depth_maps.wrapping_add(1);
+        log!("depth map {} instructions", instructions);
+        let depth = &*self.depth;
+        let msg = Message::Depth {
+            seq,
+            reference,
+            sources: source_seqs,
+            instructions,
+            depth: DepthData::Values(&depth[..]),
+        };
+        // `self.send` would borrow `self` again; encode directly.
+        match encode(&msg, &mut |b: &[u8]| uart.write_all(b)) {
+            Err(link::EncodeError::Sink(e)) => Err(e),
+            _ => Ok(()),
+        }
+    }
+
+    /// One decoded event. Returns true on shutdown.
+    fn handle<W: Write, L: OutputPin>(
+        &mut self,
+        uart: &mut W,
+        led: &mut L,
+        event: Result<Message<'_>, DecodeError>,
+    ) -> Result<bool, W::Error> {
+        match event {
+            Err(e) => {
+                log!("link error {}", e.code().code());
+                self.send_error(uart, e.code(), &e)?;
+            }
+            Ok(Message::Frame {
+                seq,
+                roll_deg,
+                image,
+            }) => self.frame(uart, led, seq, roll_deg, image)?,
+            Ok(Message::StatusRequest { .. }) => self.send_status(uart)?,
+            Ok(Message::Shutdown { .. }) => {
+                self.send_status(uart)?;
+                uart.flush()?;
+                return Ok(true);
+            }
+            Ok(m) => self.send_error(uart, ErrorCode::Unexpected, &m.kind())?,
+        }
+        Ok(false)
+    }
+
+    /// Serves until a shutdown message.
+    pub fn serve<U, L>(
+        &mut self,
+        uart: &mut U,
+        led: &mut L,
+        decoder: &mut Decoder,
+    ) -> Result<(), U::Error>
+    where
+        U: Read + Write + ReadReady,
+        L: OutputPin,
+    {
+        let mut last_rx = (self.now)();
+        let mut buf = [0u8; 64];
+        loop {
+            if uart.read_ready()? {
+                let n = uart.read(&mut buf)?;
+                for &b in buf.get(..n).unwrap_or(&[]) {
+                    decoder.push(b);
+                    while let Some(event) = decoder.poll() {
+                        if self.handle(uart, led, event)? {
+                            return Ok(());
+                        }
+                    }
+                }
+                last_rx = (self.now)();
+            } else if decoder.pending() > 0 && (self.now)().wrapping_sub(last_rx) > self.idle_ticks
+            {
+                // A partial message and a silent line: give it up and rescan what it held.
+                if let Some(e) = decoder.idle() {
+                    if self.handle(uart, led, Err(e))? {
+                        return Ok(());
+                    }
+                }
+                while let Some(event) = decoder.poll() {
+                    if self.handle(uart, led, event)? {
+                        return Ok(());
+                    }
+                }
+                last_rx = (self.now)();
+            }
+        }
+    }
+}
+
+/// `Debug` as `Display`, for error texts of library errors.
+struct Debug<T>(T);
+
+impl<T: core::fmt::Debug> core::fmt::Display for Debug<T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{:?}", self.0)
+    }
+}

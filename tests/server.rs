@@ -1,0 +1,264 @@
+//! The link server (`epssn::server`, what the firmware runs) on the host: a mock serial line
+//! and a mock busy pin, link messages in, every reply checked; the depth map of a valid view
+//! set bit for bit against the independent integer reference.
+
+use std::cell::Cell;
+use std::convert::Infallible;
+
+use epssn::config;
+use epssn::link::{encode, Decoder, ErrorCode, Message};
+use epssn::model::{Model, Workspace};
+use epssn::pairing::FeatureCache;
+use epssn::server::Server;
+use epssn_tests::{synthetic_image, Rng};
+use fixed::types::U16F16;
+
+/// A serial line: reads what the test queued, records what the server writes.
+struct MockSerial {
+    rx: Vec<u8>,
+    at: usize,
+    tx: Vec<u8>,
+}
+
+impl embedded_io::ErrorType for MockSerial {
+    type Error = Infallible;
+}
+
+impl embedded_io::Read for MockSerial {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        // A few bytes at a time, as a UART FIFO delivers them.
+        let n = buf.len().min(7).min(self.rx.len() - self.at);
+        buf[..n].copy_from_slice(&self.rx[self.at..self.at + n]);
+        self.at += n;
+        Ok(n)
+    }
+}
+
+impl embedded_io::ReadReady for MockSerial {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.at < self.rx.len())
+    }
+}
+
+impl embedded_io::Write for MockSerial {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.tx.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+/// The busy LED: counts how often it was lit and must end dark.
+#[derive(Default)]
+struct MockPin {
+    high: bool,
+    lit: usize,
+}
+
+impl embedded_hal::digital::ErrorType for MockPin {
+    type Error = Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for MockPin {
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        self.high = false;
+        Ok(())
+    }
+
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        self.lit += usize::from(!self.high);
+        self.high = true;
+        Ok(())
+    }
+}
+
+/// A reply, owned.
+#[derive(Debug, PartialEq)]
+enum Reply {
+    Depth {
+        reference: u32,
+        sources: Vec<u32>,
+        bits: Vec<u32>,
+    },
+    Status {
+        frames: u32,
+        depth_maps: u32,
+        errors: u32,
+    },
+    Error(u16),
+}
+
+fn wire(msgs: &[Message<'_>]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for m in msgs {
+        encode(m, &mut |b: &[u8]| -> Result<(), Infallible> {
+            out.extend_from_slice(b);
+            Ok(())
+        })
+        .unwrap();
+    }
+    out
+}
+
+fn replies(bytes: &[u8]) -> Vec<Reply> {
+    let mut decoder = Decoder::new();
+    let mut out = Vec::new();
+    for &b in bytes {
+        decoder.push(b);
+        while let Some(event) = decoder.poll() {
+            out.push(match event.expect("the server's replies decode") {
+                Message::Depth {
+                    reference,
+                    sources,
+                    depth,
+                    ..
+                } => Reply::Depth {
+                    reference,
+                    sources: sources.to_vec(),
+                    bits: (0..depth.len())
+                        .map(|i| depth.get(i).unwrap().to_bits())
+                        .collect(),
+                },
+                Message::Status { status, .. } => Reply::Status {
+                    frames: status.frames,
+                    depth_maps: status.depth_maps,
+                    errors: status.errors,
+                },
+                Message::Error { code, .. } => Reply::Error(code),
+                m => panic!("unexpected reply {m:?}"),
+            });
+        }
+    }
+    out
+}
+
+fn blob() -> Vec<u8> {
+    std::fs::read(epssn_reference::weights::firmware_blob_path().unwrap()).unwrap()
+}
+
+/// Serves `input` to the end (it must end with a shutdown) and returns the replies and the pin.
+fn serve(blob: &[u8], input: Vec<u8>) -> (Vec<Reply>, MockPin) {
+    let model = Model::from_blob(blob).unwrap();
+    let mut ws = Box::new(Workspace::new());
+    let mut cache = Box::new(FeatureCache::new());
+    let mut depth = Box::new([U16F16::ZERO; config::DEPTH_LEN]);
+    let mut decoder = Box::new(Decoder::new());
+    let ticks = Cell::new(0u32);
+    let now = || {
+        ticks.set(ticks.get().wrapping_add(1));
+        ticks.get()
+    };
+    let high_water = || 0;
+    let mut server = Server::new(
+        &model,
+        &mut ws,
+        &mut cache,
+        &mut depth,
+        &now,
+        1,
+        1_000_000,
+        &high_water,
+    );
+    let mut serial = MockSerial {
+        rx: input,
+        at: 0,
+        tx: Vec::new(),
+    };
+    let mut pin = MockPin::default();
+    server.serve(&mut serial, &mut pin, &mut decoder).unwrap();
+    assert_eq!(serial.at, serial.rx.len(), "the server stopped early");
+    (replies(&serial.tx), pin)
+}
+
+#[test]
+fn status_garbage_and_unexpected_messages_get_replies() {
+    let mut input = wire(&[Message::StatusRequest { seq: 1 }]);
+    // A message with a broken CRC.
+    let mut bad = wire(&[Message::StatusRequest { seq: 2 }]);
+    let last = bad.len() - 1;
+    bad[last] ^= 0xff;
+    input.extend(bad);
+    // A message only the device sends.
+    input.extend(wire(&[Message::Error {
+        seq: 3,
+        code: 1,
+        msg: "x",
+    }]));
+    input.extend(wire(&[Message::Shutdown { seq: 4 }]));
+    let (got, pin) = serve(&blob(), input);
+    assert_eq!(got.len(), 4, "{got:?}");
+    assert_eq!(
+        got[0],
+        Reply::Status {
+            frames: 0,
+            depth_maps: 0,
+            errors: 0
+        }
+    );
+    assert_eq!(got[1], Reply::Error(ErrorCode::BadCrc.code()));
+    assert_eq!(got[2], Reply::Error(ErrorCode::Unexpected.code()));
+    assert_eq!(
+        got[3],
+        Reply::Status {
+            frames: 0,
+            depth_maps: 0,
+            errors: 2
+        }
+    );
+    assert_eq!(pin.lit, 0);
+}
+
+#[test]
+fn a_view_set_gets_the_integer_reference_depth_map_bit_for_bit() {
+    let blob = blob();
+    let mut rng = Rng(21);
+    let reference = synthetic_image(&mut rng, 0.0);
+    let source = synthetic_image(&mut rng, 0.4);
+    let input = wire(&[
+        Message::Frame {
+            seq: 1,
+            roll_deg: 0.0,
+            image: &reference,
+        },
+        Message::Frame {
+            seq: 2,
+            roll_deg: config::ROLL_STEP_DEG as f32,
+            image: &source,
+        },
+        Message::Shutdown { seq: 3 },
+    ]);
+    let (got, pin) = serve(&blob, input);
+    let expected = epssn_reference::reference_model::run(&blob, &[&reference, &source])
+        .unwrap()
+        .depth;
+    assert_eq!(got.len(), 3, "{got:?}");
+    assert_eq!(
+        got[0],
+        Reply::Status {
+            frames: 1,
+            depth_maps: 0,
+            errors: 0
+        }
+    );
+    assert_eq!(
+        got[1],
+        Reply::Depth {
+            reference: 1,
+            sources: vec![2],
+            bits: expected,
+        }
+    );
+    assert_eq!(
+        got[2],
+        Reply::Status {
+            frames: 2,
+            depth_maps: 1,
+            errors: 0
+        }
+    );
+    assert_eq!(pin.lit, 2, "the busy LED is lit once per frame");
+    assert!(!pin.high, "and dark when idle");
+}
