@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Coverage-guided fuzzing of every parser (fuzz/: cargo-fuzz, libFuzzer): the link decoder,
+# the weight blob, the spec JSON, the beam tables, the ARIS reader and the frame pairing.
+#   bash scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
+# Installs what it needs (a nightly toolchain, cargo-fuzz), seeds each corpus (encoded link
+# messages, the shipped weight blob, the spec), runs each target for SECONDS (default 30) and
+# fails on the first crash; crashes land in fuzz/artifacts/<target>/ for `cargo fuzz run
+# <target> <file>` to replay. The corpora grow in fuzz/corpus/ (not committed).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seconds=${1:-30}
+shift || true
+targets=("$@")
+[ ${#targets[@]} -gt 0 ] || targets=(link_decoder model_from_blob spec_json beam_table aris_reader pairing)
+
+rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
+command -v cargo-fuzz >/dev/null 2>&1 || cargo install --locked cargo-fuzz
+
+corpus=fuzz/corpus
+mkdir -p "$corpus"/{link_decoder,model_from_blob,spec_json,beam_table,aris_reader,pairing}
+cargo run -q --example link_seeds -- "$corpus/link_decoder"
+cp "$(tr -d '[:space:]' < weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
+cp weights/epssn-s.json "$corpus/spec_json/epssn-s.json"
+cp data/aris-beam-widths/ARIS3000_128.csv "$corpus/beam_table/"
+# The demo recording's first frames (the whole file is large; the reader's checks come first).
+head -c 200000 data/demo/recording.aris > "$corpus/aris_reader/demo-head.aris"
+# Pairing: (seq u32, roll f32, views) records of a 0, 7, 14 degree sweep.
+python3 - "$corpus/pairing/sweep" <<'PY'
+import struct, sys
+out = b''.join(struct.pack('<If', i, (i % 3) * 7.0) + bytes([i % 2]) for i in range(1, 40))
+open(sys.argv[1], 'wb').write(out)
+PY
+
+for t in "${targets[@]}"; do
+    printf '\n==> fuzz %s for %s s\n' "$t" "$seconds"
+    log=$(mktemp)
+    if ! (cd fuzz && cargo +nightly fuzz run "$t" -- -max_total_time="$seconds" \
+        -rss_limit_mb=2048 -max_len=20000) >"$log" 2>&1; then
+        tail -40 "$log"
+        echo "fuzz target $t failed (crash input in fuzz/artifacts/$t/)"
+        exit 1
+    fi
+    grep -E '^(#[0-9]+.*DONE|Done [0-9]+ runs)' "$log" | tail -2
+    rm -f "$log"
+done
