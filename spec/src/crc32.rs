@@ -1,33 +1,25 @@
-//! CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib and PNG compute it.
+//! CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320; `CRC_32_ISO_HDLC`), as zlib and PNG
+//! compute it, through the maintained `crc` crate (one 1 KiB table, no_std).
 //!
-//! Used for weight blobs, the link protocol and the model-spec hash; `build.rs` compiles this
-//! file too, so the build-time hash and the run-time check are the same code.
+//! Used for weight blobs, the link protocol and the model-spec hash; the build script runs this
+//! crate too, so the build-time hash and the run-time check are the same code.
 
-const fn make_table() -> [u32; 256] {
-    let mut table = [0u32; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut c = i as u32;
-        let mut k = 0;
-        while k < 8 {
-            c = if c & 1 != 0 {
-                0xEDB8_8320 ^ (c >> 1)
-            } else {
-                c >> 1
-            };
-            k += 1;
-        }
-        table[i] = c;
-        i += 1;
-    }
-    table
-}
+use crc::{Crc, Digest, Table, CRC_32_ISO_HDLC};
 
-static TABLE: [u32; 256] = make_table();
+/// The algorithm with its byte-wise table.
+const CRC: Crc<u32, Table<1>> = Crc::<u32, Table<1>>::new(&CRC_32_ISO_HDLC);
+/// The same, in one place in flash (a digest borrows it).
+static ALGORITHM: Crc<u32, Table<1>> = CRC;
 
 /// Incremental CRC-32 state.
-#[derive(Clone, Copy, Debug)]
-pub struct Crc32(u32);
+#[derive(Clone)]
+pub struct Crc32(Digest<'static, u32, Table<1>>);
+
+impl core::fmt::Debug for Crc32 {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("Crc32").field(&self.finish()).finish()
+    }
+}
 
 impl Default for Crc32 {
     fn default() -> Self {
@@ -38,29 +30,23 @@ impl Default for Crc32 {
 impl Crc32 {
     /// A fresh state.
     pub const fn new() -> Self {
-        Self(0xFFFF_FFFF)
+        Self(ALGORITHM.digest())
     }
 
     /// Feeds bytes.
     pub fn update(&mut self, bytes: &[u8]) {
-        let mut c = self.0;
-        for &b in bytes {
-            c = TABLE[((c ^ b as u32) & 0xFF) as usize] ^ (c >> 8);
-        }
-        self.0 = c;
+        self.0.update(bytes);
     }
 
     /// The checksum of everything fed so far.
     pub fn finish(&self) -> u32 {
-        self.0 ^ 0xFFFF_FFFF
+        self.0.clone().finalize()
     }
 }
 
 /// CRC-32 of `bytes` in one call.
 pub fn crc32(bytes: &[u8]) -> u32 {
-    let mut c = Crc32::new();
-    c.update(bytes);
-    c.finish()
+    ALGORITHM.checksum(bytes)
 }
 
 #[cfg(test)]
@@ -69,5 +55,14 @@ mod tests {
     fn check_value() {
         // The standard check value of CRC-32/ISO-HDLC.
         assert_eq!(super::crc32(b"123456789"), 0xCBF4_3926);
+    }
+
+    #[test]
+    fn incremental_equals_one_call() {
+        let mut c = super::Crc32::new();
+        c.update(b"1234");
+        assert_eq!(c.finish(), super::crc32(b"1234"));
+        c.update(b"56789");
+        assert_eq!(c.finish(), 0xCBF4_3926);
     }
 }

@@ -19,21 +19,15 @@ use epssn::requant::Requant;
 use epssn_reference::intref::{self, Mult, Shape};
 use fixed::types::U16F16;
 
-struct Rng(u64);
+use epssn_sim::synthetic::Rng;
 
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + (self.next() % (hi - lo + 1) as u64) as i64
-    }
+/// Random test data on the host's one generator.
+trait TestData {
+    fn i8s(&mut self, n: usize) -> Vec<i8>;
+    fn mult(&mut self, shift_lo: i32, shift_hi: i32) -> Mult;
+}
+
+impl TestData for Rng {
     fn i8s(&mut self, n: usize) -> Vec<i8> {
         (0..n).map(|_| self.range(-128, 127) as i8).collect()
     }

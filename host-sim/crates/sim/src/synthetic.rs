@@ -2,10 +2,17 @@
 //! (SplitMix64) and sonar-like polar images, for tests, calibration of untrained weights and
 //! benchmarks.
 
-/// A small deterministic generator (SplitMix64) for test data.
+/// The small deterministic generator (SplitMix64) of the host's test data, bring-up weights,
+/// training initialisation and shuffling.
+#[derive(Clone, Debug)]
 pub struct Rng(pub u64);
 
 impl Rng {
+    /// Seeds the generator.
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
     /// Next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         // SplitMix64: the output is the finaliser of the advanced state.
@@ -17,6 +24,29 @@ impl Rng {
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in [0, 1) as f32 (24 bits).
+    pub fn unit(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Uniform in `0..n` (`n` > 0; modulo bias is irrelevant for test data).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
+    }
+
+    /// Uniform in `lo..=hi`.
+    pub fn range(&mut self, lo: i64, hi: i64) -> i64 {
+        lo + (self.next_u64() % (hi - lo + 1) as u64) as i64
+    }
+
+    /// Fisher–Yates shuffle.
+    pub fn shuffle<T>(&mut self, v: &mut [T]) {
+        for i in (1..v.len()).rev() {
+            let j = (self.next_u64() % (i as u64 + 1)) as usize;
+            v.swap(i, j);
+        }
     }
 
     /// Approximately normal (sum of uniforms), mean 0, standard deviation `sd`.

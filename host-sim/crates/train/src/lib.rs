@@ -874,37 +874,9 @@ impl FloatModel {
     }
 }
 
-/// Small deterministic PRNG (SplitMix64) for initialisation and shuffling.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(u64);
-
-impl SplitMix64 {
-    /// Seeds the generator.
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        // SplitMix64: the output is the finaliser of the advanced state.
-        let z = epssn_sim::scene::mix64(self.0);
-        self.0 = self.0.wrapping_add(epssn_sim::scene::SPLITMIX_GAMMA);
-        z
-    }
-
-    /// Uniform in [0, 1).
-    pub fn unit(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    /// Fisher–Yates shuffle.
-    pub fn shuffle<T>(&mut self, v: &mut [T]) {
-        for i in (1..v.len()).rev() {
-            let j = (self.next_u64() % (i as u64 + 1)) as usize;
-            v.swap(i, j);
-        }
-    }
-}
+/// The deterministic generator (SplitMix64) of initialisation and shuffling: the host's one
+/// test-data generator, [`epssn_sim::synthetic::Rng`].
+pub use epssn_sim::synthetic::Rng as SplitMix64;
 
 #[cfg(test)]
 mod tests {
