@@ -106,7 +106,9 @@ impl<'a> Server<'a> {
         )
     }
 
-    /// A status reply, or with `hello` the reply to a hello (same counters).
+    /// A status reply, or with `hello` the reply to a hello (same counters). Not inlined: one
+    /// copy for its four callers keeps the firmware within its flash.
+    #[inline(never)]
     fn send_status<W: Write>(&mut self, uart: &mut W, hello: bool) -> Result<(), W::Error> {
         self.status.stack_high_water = (self.stack_high_water)();
         self.status.cached = self.cache.len() as u32;

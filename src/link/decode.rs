@@ -208,19 +208,18 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
             instructions: h.instr.unwrap_or(0),
             depth: DepthData::Bytes(payload),
         },
-        kind::STATUS => Message::Status {
-            seq,
-            status: status_of(&h),
-        },
-        // A hello carries counters when it is the device's reply (all four present).
-        kind::HELLO => Message::Hello {
-            seq,
-            status: (h.frames.is_some()
-                && h.depths.is_some()
-                && h.errors.is_some()
-                && h.stack.is_some())
-            .then(|| status_of(&h)),
-        },
+        kind::STATUS | kind::HELLO => {
+            let status = status_of(&h);
+            if h.t == kind::STATUS {
+                Message::Status { seq, status }
+            } else {
+                // A hello carries counters (`frames` present) when it is the device's reply.
+                Message::Hello {
+                    seq,
+                    status: h.frames.map(|_| status),
+                }
+            }
+        }
         kind::ERROR => Message::Error {
             seq,
             code: h.code.unwrap_or(0),
