@@ -106,12 +106,23 @@ impl<'a> Server<'a> {
         )
     }
 
-    fn send_status<W: Write>(&mut self, uart: &mut W) -> Result<(), W::Error> {
+    /// A status reply, or with `hello` the reply to a hello (same counters). Not inlined: one
+    /// copy for its four callers keeps the firmware within its flash.
+    #[inline(never)]
+    fn send_status<W: Write>(&mut self, uart: &mut W, hello: bool) -> Result<(), W::Error> {
         self.status.stack_high_water = (self.stack_high_water)();
         self.status.cached = self.cache.len() as u32;
         let seq = self.next_seq();
         let status = self.status;
-        self.send(uart, &Message::Status { seq, status })
+        let msg = if hello {
+            Message::Hello {
+                seq,
+                status: Some(status),
+            }
+        } else {
+            Message::Status { seq, status }
+        };
+        self.send(uart, &msg)
     }
 
     /// A frame: features into the cache, then a depth map if it completes a view set, else
@@ -141,7 +152,7 @@ impl<'a> Server<'a> {
         self.status.frames = self.status.frames.wrapping_add(1);
         let Some(set) = self.cache.find(&newest, config::VIEWS) else {
             let _ = led.set_low();
-            return self.send_status(uart);
+            return self.send_status(uart, false);
         };
         // The depth map, in a block so the borrows of the cached features end before replying.
         let computed = {
@@ -206,9 +217,16 @@ impl<'a> Server<'a> {
                 roll_deg,
                 image,
             }) => self.frame(uart, led, seq, roll_deg, image)?,
-            Ok(Message::StatusRequest { .. }) => self.send_status(uart)?,
+            Ok(Message::StatusRequest { .. }) => self.send_status(uart, false)?,
+            Ok(Message::Hello { status: None, .. }) => {
+                // A new session: the decoder accepted the hello whatever its seq; the frames
+                // of the old session are forgotten and the replies' seqs restart at 1.
+                self.cache.clear();
+                self.tx_seq = 0;
+                self.send_status(uart, true)?;
+            }
             Ok(Message::Shutdown { .. }) => {
-                self.send_status(uart)?;
+                self.send_status(uart, false)?;
                 uart.flush()?;
                 return Ok(true);
             }

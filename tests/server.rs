@@ -89,6 +89,12 @@ enum Reply {
         errors: u32,
     },
     Error(u16),
+    Hello {
+        seq: u32,
+        frames: u32,
+        errors: u32,
+        cached: u32,
+    },
 }
 
 fn wire(msgs: &[Message<'_>]) -> Vec<u8> {
@@ -128,6 +134,15 @@ fn replies(bytes: &[u8]) -> Vec<Reply> {
                     errors: status.errors,
                 },
                 Message::Error { code, .. } => Reply::Error(code),
+                Message::Hello {
+                    seq,
+                    status: Some(status),
+                } => Reply::Hello {
+                    seq,
+                    frames: status.frames,
+                    errors: status.errors,
+                    cached: status.cached,
+                },
                 m => panic!("unexpected reply {m:?}"),
             });
         }
@@ -261,4 +276,160 @@ fn a_view_set_gets_the_integer_reference_depth_map_bit_for_bit() {
     );
     assert_eq!(pin.lit, 2, "the busy LED is lit once per frame");
     assert!(!pin.high, "and dark when idle");
+}
+
+fn status(frames: u32, depth_maps: u32, errors: u32) -> Reply {
+    Reply::Status {
+        frames,
+        depth_maps,
+        errors,
+    }
+}
+
+fn frame(seq: u32, roll_deg: f32, image: &[u8]) -> Message<'_> {
+    Message::Frame {
+        seq,
+        roll_deg,
+        image,
+    }
+}
+
+const HELLO: fn(u32) -> Message<'static> = |seq| Message::Hello { seq, status: None };
+
+#[test]
+fn a_restarted_host_is_served_at_once_after_hello() {
+    let blob = blob();
+    let mut rng = Rng(22);
+    let a = synthetic_image(&mut rng, 0.0);
+    let b = synthetic_image(&mut rng, 0.4);
+    let step = config::ROLL_STEP_DEG as f32;
+    let input = wire(&[
+        // The old session got as far as seq 10 with one frame cached.
+        frame(10, 0.0, &a),
+        // The host restarts: its old-style seqs are refused...
+        Message::StatusRequest { seq: 1 },
+        // ...until it says hello, which restarts the sequence at any seq and forgets the
+        // old session's frames.
+        HELLO(0),
+        frame(1, step, &b),
+        frame(2, 0.0, &a),
+        Message::Shutdown { seq: 3 },
+    ]);
+    let (got, _) = serve(&blob, input);
+    let expected = epssn_reference::reference_model::run(&blob, &[&a, &b])
+        .unwrap()
+        .depth;
+    assert_eq!(
+        got,
+        vec![
+            status(1, 0, 0),
+            Reply::Error(ErrorCode::OutOfOrder.code()),
+            Reply::Hello {
+                seq: 1,
+                frames: 1,
+                errors: 1,
+                cached: 0
+            },
+            // Frame 1 does not pair with the forgotten frame 10 (same roll as frame 2).
+            status(2, 0, 1),
+            Reply::Depth {
+                reference: 2,
+                sources: vec![1],
+                bits: expected,
+            },
+            status(3, 1, 1),
+        ]
+    );
+}
+
+#[test]
+fn seq_u32_max_then_hello_restarts_the_sequence() {
+    let input = wire(&[
+        Message::StatusRequest { seq: u32::MAX },
+        // Nothing is greater than u32::MAX: refused, as before hello existed...
+        Message::StatusRequest { seq: 0 },
+        Message::StatusRequest { seq: u32::MAX },
+        // ...a hello restarts (the line may also go idle meanwhile: that changes nothing).
+        HELLO(0),
+        Message::StatusRequest { seq: 1 },
+        HELLO(u32::MAX),
+        HELLO(5),
+        Message::Shutdown { seq: 6 },
+    ]);
+    let (got, _) = serve(&blob(), input);
+    let hello = |seq, errors| Reply::Hello {
+        seq,
+        frames: 0,
+        errors,
+        cached: 0,
+    };
+    assert_eq!(
+        got,
+        vec![
+            status(0, 0, 0),
+            Reply::Error(ErrorCode::OutOfOrder.code()),
+            Reply::Error(ErrorCode::OutOfOrder.code()),
+            hello(1, 2),
+            status(0, 0, 2),
+            hello(1, 2),
+            hello(1, 2),
+            status(0, 0, 2),
+        ]
+    );
+}
+
+#[test]
+fn hello_mid_stream_starts_a_new_session() {
+    let blob = blob();
+    let mut rng = Rng(23);
+    let a = synthetic_image(&mut rng, 0.0);
+    let b = synthetic_image(&mut rng, 0.4);
+    let step = config::ROLL_STEP_DEG as f32;
+    let input = wire(&[
+        frame(1, 0.0, &a),
+        // Sent without waiting, seq still increasing: a session restart all the same.
+        HELLO(2),
+        frame(3, step, &b),
+        frame(4, 0.0, &a),
+        Message::Shutdown { seq: 5 },
+    ]);
+    let (got, _) = serve(&blob, input);
+    let expected = epssn_reference::reference_model::run(&blob, &[&a, &b])
+        .unwrap()
+        .depth;
+    assert_eq!(
+        got,
+        vec![
+            status(1, 0, 0),
+            Reply::Hello {
+                seq: 1,
+                frames: 1,
+                errors: 0,
+                cached: 0
+            },
+            status(2, 0, 0),
+            Reply::Depth {
+                reference: 4,
+                sources: vec![3],
+                bits: expected,
+            },
+            status(3, 1, 0),
+        ]
+    );
+}
+
+#[test]
+fn a_hello_with_counters_sent_to_the_device_is_unexpected() {
+    let input = wire(&[
+        Message::Hello {
+            seq: 1,
+            status: Some(Default::default()),
+        },
+        Message::Shutdown { seq: 2 },
+    ]);
+    let (got, _) = serve(&blob(), input);
+    assert_eq!(
+        got,
+        vec![Reply::Error(ErrorCode::Unexpected.code()), status(0, 0, 1)]
+    );
 }

@@ -186,6 +186,20 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             config::SPEC_NAME
         );
     }
+    // Too few frames for one depth map: the reader's warnings (truncation, FrameCount) say why.
+    let needed = if args.pairs.is_empty() { args.views } else { 2 };
+    if reader.frame_count() < needed {
+        bail!(
+            "{} holds {} complete frame(s), a depth map needs {needed}{}",
+            recording.display(),
+            reader.frame_count(),
+            if warnings.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", warnings.join("; "))
+            }
+        );
+    }
     let rolls: Vec<Option<f64>> = (0..reader.frame_count())
         .map(|i| frame_roll(&reader, i))
         .collect();

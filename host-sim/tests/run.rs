@@ -83,3 +83,41 @@ fn pairing_by_roll_follows_the_baseline_and_tolerance() {
     assert_eq!(pair_by_roll(&rolls, 3), vec![vec![0, 1, 3], vec![2, 5, 3]]);
     assert!(pair_by_roll(&[None, None], 2).is_empty());
 }
+
+#[test]
+fn a_truncated_recording_is_refused_with_the_readers_cause() {
+    let demo = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo/recording.aris");
+    let bytes = std::fs::read(demo).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("cut.aris");
+    // The 1024-byte file header, one complete frame and 1000 bytes of the second.
+    let frames = 12;
+    let frame_len = (bytes.len() - 1024) / frames;
+    std::fs::write(&rec, &bytes[..1024 + frame_len + 1000]).unwrap();
+    for extra in [&[][..], &["--pair", "0:1"][..]] {
+        let o = host_sim()
+            .arg("run")
+            .arg("--recording")
+            .arg(&rec)
+            .args(extra)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("holds 1 complete frame(s), a depth map needs 2")
+                && err.contains(&format!(
+                    "truncated last frame: 1000 trailing bytes of a {frame_len}-byte frame \
+                     ignored ({} bytes missing)",
+                    frame_len - 1000
+                ))
+                && err.contains(
+                    "FrameCount is 12, but the file holds 1 complete frames (11 missing)"
+                )
+                && !err.contains("give --pair"),
+            "{err}"
+        );
+    }
+}

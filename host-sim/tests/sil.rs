@@ -12,7 +12,7 @@ fn host_sim() -> Command {
 fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     let out = host_sim()
         .args([
-            "sil", "--frames", "3", "--fuzz", "200", "--seed", "11", "--json",
+            "sil", "--frames", "3", "--fuzz", "200", "--seed", "11", "--faults", "1", "--json",
         ])
         .output()
         .expect("run host-sim sil");
@@ -75,7 +75,23 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
         .values()
         .map(|v| v.as_u64().unwrap())
         .sum();
-    assert_eq!(r["device_errors"].as_u64().unwrap(), replied);
+    let faults = &r["faults"];
+    assert_eq!(
+        r["device_errors"].as_u64().unwrap(),
+        replied + faults["error_replies"].as_u64().unwrap()
+    );
+    // The fault campaign: every class sent, answered with its code and recovered from, then
+    // the frames again after a hello, bit-exact.
+    let classes = faults["classes"].as_object().unwrap();
+    assert_eq!(classes.len(), epssn_sil::faults::CLASSES.len(), "{faults}");
+    for (name, c) in classes {
+        assert_eq!(c["sent"], 1, "{name}: {c}");
+        assert_eq!(c["answered_expected"], 1, "{name}: {c}");
+        assert_eq!(c["recovered"], 1, "{name}: {c}");
+    }
+    assert_eq!(faults["failed"], 0);
+    assert_eq!(r["after_faults_bit_exact"], true);
+    assert_eq!(r["after_faults_depth_maps"], 2);
 }
 
 #[test]

@@ -170,7 +170,7 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.code.is_some(), "code")?;
             expect(0)
         }
-        kind::STATUS_REQUEST | kind::SHUTDOWN => expect(0),
+        kind::STATUS_REQUEST | kind::SHUTDOWN | kind::HELLO => expect(0),
         _ => Err(DecodeError::UnknownType),
     }
 }
@@ -179,6 +179,16 @@ fn parse_header(json: &[u8]) -> Result<Header<'_>, DecodeError> {
     match serde_json_core::from_slice::<Header<'_>>(json) {
         Ok((h, n)) if n == json.len() => Ok(h),
         _ => Err(DecodeError::BadJson),
+    }
+}
+
+fn status_of(h: &Header<'_>) -> Status {
+    Status {
+        frames: h.frames.unwrap_or(0),
+        depth_maps: h.depths.unwrap_or(0),
+        errors: h.errors.unwrap_or(0),
+        stack_high_water: h.stack.unwrap_or(0),
+        cached: h.cached.unwrap_or(0),
     }
 }
 
@@ -198,16 +208,18 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
             instructions: h.instr.unwrap_or(0),
             depth: DepthData::Bytes(payload),
         },
-        kind::STATUS => Message::Status {
-            seq,
-            status: Status {
-                frames: h.frames.unwrap_or(0),
-                depth_maps: h.depths.unwrap_or(0),
-                errors: h.errors.unwrap_or(0),
-                stack_high_water: h.stack.unwrap_or(0),
-                cached: h.cached.unwrap_or(0),
-            },
-        },
+        kind::STATUS | kind::HELLO => {
+            let status = status_of(&h);
+            if h.t == kind::STATUS {
+                Message::Status { seq, status }
+            } else {
+                // A hello carries counters (`frames` present) when it is the device's reply.
+                Message::Hello {
+                    seq,
+                    status: h.frames.map(|_| status),
+                }
+            }
+        }
         kind::ERROR => Message::Error {
             seq,
             code: h.code.unwrap_or(0),
@@ -222,7 +234,8 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
 /// A streaming decoder: [`Decoder::push`] bytes as they arrive, then call [`Decoder::poll`]
 /// until it returns `None`. After any error it rescans the bytes it holds from the one after
 /// the rejected message's first sync byte, so a valid message hidden behind a corrupt length
-/// is still found. Sequence numbers must increase strictly.
+/// is still found. Sequence numbers must increase strictly, except that a `hello` is accepted
+/// whatever its `seq` and restarts the sequence from it (a new session; see docs/LINK.md).
 pub struct Decoder {
     buf: [u8; MAX_MESSAGE_LEN],
     fill: usize,
@@ -230,6 +243,8 @@ pub struct Decoder {
     total: Option<usize>,
     /// `seq` of the checked header.
     seq: u32,
+    /// The checked header is a `hello` (restarts the sequence).
+    hello: bool,
     /// Garbage bytes dropped since the last report.
     skipped: usize,
     /// Bytes of the message returned by the last `poll`, removed on the next call.
@@ -258,6 +273,7 @@ impl Decoder {
             fill: 0,
             total: None,
             seq: 0,
+            hello: false,
             skipped: 0,
             consumed: 0,
             last_seq: None,
@@ -282,6 +298,13 @@ impl Decoder {
     /// Times the buffer was full on a push (the caller did not poll).
     pub fn overflows(&self) -> u32 {
         self.overflows
+    }
+
+    /// Forgets the sequence state: the next message is accepted whatever its `seq`. For a
+    /// host that starts a session itself (it sends `hello`); the device's decoder restarts on
+    /// the `hello` it receives.
+    pub fn restart(&mut self) {
+        self.last_seq = None;
     }
 
     /// `seq` of the last message accepted.
@@ -394,13 +417,14 @@ impl Decoder {
                     let json = &self.buf[PREAMBLE_LEN..PREAMBLE_LEN + h];
                     let checked = parse_header(json).and_then(|hdr| {
                         let len = check_header(&hdr)?;
-                        Ok((len, hdr.seq))
+                        Ok((len, hdr.seq, hdr.t == kind::HELLO))
                     });
                     match checked {
-                        Ok((len, seq)) => {
+                        Ok((len, seq, hello)) => {
                             let t = PREAMBLE_LEN + h + len + CRC_LEN;
                             self.total = Some(t);
                             self.seq = seq;
+                            self.hello = hello;
                             t
                         }
                         Err(e) => {
@@ -423,7 +447,7 @@ impl Decoder {
                 return Step::Error(DecodeError::BadCrc { wire, computed });
             }
             let seq = self.seq;
-            if let Some(last) = self.last_seq {
+            if let (Some(last), false) = (self.last_seq, self.hello) {
                 if seq <= last {
                     // A whole valid message: drop it, not just its first byte.
                     self.resync(total, false);

@@ -142,6 +142,14 @@ pub enum Message<'a> {
         /// Short text.
         msg: &'a str,
     },
+    /// Either direction: starts a session. Host → device without counters (any `seq`: it
+    /// restarts the sequence); the device answers with one carrying its counters.
+    Hello {
+        /// Sequence number (accepted whatever the previous one was).
+        seq: u32,
+        /// The device's counters (device → host only).
+        status: Option<Status>,
+    },
     /// Host → device: stop serving.
     Shutdown {
         /// Sequence number.
@@ -158,6 +166,7 @@ impl Message<'_> {
             | Message::StatusRequest { seq }
             | Message::Status { seq, .. }
             | Message::Error { seq, .. }
+            | Message::Hello { seq, .. }
             | Message::Shutdown { seq } => *seq,
         }
     }
@@ -170,6 +179,7 @@ impl Message<'_> {
             Message::StatusRequest { .. } => kind::STATUS_REQUEST,
             Message::Status { .. } => kind::STATUS,
             Message::Error { .. } => kind::ERROR,
+            Message::Hello { .. } => kind::HELLO,
             Message::Shutdown { .. } => kind::SHUTDOWN,
         }
     }
@@ -205,7 +215,11 @@ impl Message<'_> {
                     DepthData::Bytes(b) => Payload::Bytes(b),
                 }
             }
-            Message::Status { status, .. } => {
+            Message::Status { status, .. }
+            | Message::Hello {
+                status: Some(status),
+                ..
+            } => {
                 h.frames = Some(status.frames);
                 h.depths = Some(status.depth_maps);
                 h.errors = Some(status.errors);
@@ -218,7 +232,9 @@ impl Message<'_> {
                 h.msg = Some(msg);
                 Payload::Bytes(&[])
             }
-            Message::StatusRequest { .. } | Message::Shutdown { .. } => Payload::Bytes(&[]),
+            Message::StatusRequest { .. }
+            | Message::Shutdown { .. }
+            | Message::Hello { status: None, .. } => Payload::Bytes(&[]),
         };
         if !payload.is_empty() {
             h.len = Some(u32::try_from(payload.len()).unwrap_or(u32::MAX));

@@ -81,6 +81,8 @@ pub mod kind {
     pub const ERROR: &str = "error";
     /// Host → device: stop serving (the device answers with a status first).
     pub const SHUTDOWN: &str = "shutdown";
+    /// Either direction: starts a session; accepted whatever its `seq` (docs/LINK.md).
+    pub const HELLO: &str = "hello";
 }
 
 #[cfg(test)]
@@ -203,6 +205,20 @@ mod tests {
                 msg: "crc 1 != 2",
             },
             Message::Shutdown { seq: 6 },
+            Message::Hello {
+                seq: 7,
+                status: None,
+            },
+            Message::Hello {
+                seq: 8,
+                status: Some(Status {
+                    frames: 1,
+                    depth_maps: 2,
+                    errors: 3,
+                    stack_high_water: 4,
+                    cached: 5,
+                }),
+            },
         ];
         let mut d = Decoder::new();
         for m in &msgs {
@@ -414,6 +430,90 @@ mod tests {
             ]
         );
         assert_eq!(d.last_seq(), Some(6));
+    }
+
+    fn hello(seq: u32) -> Message<'static> {
+        Message::Hello { seq, status: None }
+    }
+
+    #[test]
+    fn seq_u32_max_blocks_until_hello_even_after_idle() {
+        let mut d = Decoder::new();
+        let sr = |seq| wire(&Message::StatusRequest { seq });
+        let mut bytes = sr(u32::MAX);
+        bytes.extend(sr(0));
+        assert_eq!(
+            feed(&mut d, &bytes),
+            std::vec![
+                Ev::Msg(u32::MAX, kind::STATUS_REQUEST, 0),
+                Ev::Err(DecodeError::OutOfOrder {
+                    last: u32::MAX,
+                    seq: 0
+                }),
+            ]
+        );
+        // An idle line is not a session restart.
+        assert_eq!(d.idle(), None);
+        assert_eq!(
+            feed(&mut d, &sr(1)),
+            std::vec![Ev::Err(DecodeError::OutOfOrder {
+                last: u32::MAX,
+                seq: 1
+            })]
+        );
+        // A hello is: accepted at any seq, and the sequence goes on from it.
+        let mut bytes = wire(&hello(0));
+        bytes.extend(sr(1));
+        bytes.extend(sr(1));
+        assert_eq!(
+            feed(&mut d, &bytes),
+            std::vec![
+                Ev::Msg(0, kind::HELLO, 0),
+                Ev::Msg(1, kind::STATUS_REQUEST, 0),
+                Ev::Err(DecodeError::OutOfOrder { last: 1, seq: 1 }),
+            ]
+        );
+        assert_eq!(d.last_seq(), Some(1));
+    }
+
+    #[test]
+    fn restart_with_lower_seq_after_hello_and_hello_mid_stream() {
+        let mut d = Decoder::new();
+        let sr = |seq| wire(&Message::StatusRequest { seq });
+        let mut bytes = sr(100);
+        bytes.extend(sr(3)); // an old host restarted without hello: refused, as before
+        bytes.extend(wire(&hello(3))); // with hello: served
+        bytes.extend(sr(4));
+        bytes.extend(wire(&hello(50))); // mid-stream, greater seq: also a restart
+        bytes.extend(sr(51));
+        bytes.extend(wire(&hello(50))); // a repeated hello, same seq: accepted
+        bytes.extend(sr(50));
+        assert_eq!(
+            feed(&mut d, &bytes),
+            std::vec![
+                Ev::Msg(100, kind::STATUS_REQUEST, 0),
+                Ev::Err(DecodeError::OutOfOrder { last: 100, seq: 3 }),
+                Ev::Msg(3, kind::HELLO, 0),
+                Ev::Msg(4, kind::STATUS_REQUEST, 0),
+                Ev::Msg(50, kind::HELLO, 0),
+                Ev::Msg(51, kind::STATUS_REQUEST, 0),
+                Ev::Msg(50, kind::HELLO, 0),
+                Ev::Err(DecodeError::OutOfOrder { last: 50, seq: 50 }),
+            ]
+        );
+        // A corrupt hello restarts nothing.
+        let mut bad = wire(&hello(0));
+        let n = bad.len();
+        bad[n - 1] ^= 1;
+        let ev = feed(&mut d, &bad);
+        assert!(matches!(ev[0], Ev::Err(DecodeError::BadCrc { .. })));
+        assert_eq!(d.last_seq(), Some(50));
+        // The host side: restart() forgets the sequence.
+        d.restart();
+        assert_eq!(
+            feed(&mut d, &sr(0)),
+            std::vec![Ev::Msg(0, kind::STATUS_REQUEST, 0)]
+        );
     }
 
     #[test]

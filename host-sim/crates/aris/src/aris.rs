@@ -865,13 +865,16 @@ impl<R: Read + Seek> ArisReader<R> {
         if remainder != 0 {
             warnings.push(format!(
                 "truncated last frame: {remainder} trailing bytes of a {frame_len}-byte frame \
-                 ignored; {frame_count} complete frames kept"
+                 ignored ({} bytes missing); {frame_count} complete frames kept",
+                frame_len - remainder
             ));
         }
         if u64::from(file_header.frame_count) != complete {
             warnings.push(format!(
-                "file header FrameCount is {}, but the file holds {frame_count} complete frames",
-                file_header.frame_count
+                "file header FrameCount is {}, but the file holds {frame_count} complete frames \
+                 ({} missing)",
+                file_header.frame_count,
+                u64::from(file_header.frame_count).abs_diff(complete)
             ));
         }
         if file_header.file_size != source_len {

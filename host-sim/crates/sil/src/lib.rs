@@ -6,4 +6,5 @@
 
 pub mod bench;
 pub mod budgets;
+pub mod faults;
 pub mod sil;

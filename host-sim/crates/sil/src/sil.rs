@@ -45,7 +45,11 @@ pub struct SilArgs {
     /// After the frames, send this many malformed messages (with status requests between).
     #[arg(long, default_value_t = 0)]
     pub fuzz: usize,
-    /// Seed of the fuzz run.
+    /// Fault campaign (docs/LINK.md, issue 14): rounds per fault class, each fault checked
+    /// against the library decoder's verdict, then a hello and valid frames checked bit for bit.
+    #[arg(long, default_value_t = 2)]
+    pub faults: usize,
+    /// Seed of the fuzz run and the fault campaign.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Seconds to wait for any one reply.
@@ -111,6 +115,15 @@ pub struct SilReport {
     pub device_errors: u32,
     /// The fuzz run, if any.
     pub fuzz: Option<FuzzReport>,
+    /// The fault campaign, if any.
+    pub faults: Option<crate::faults::FaultReport>,
+    /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
+    /// the host library (pairs and feature cache included); true without a campaign.
+    pub after_faults_bit_exact: bool,
+    /// Depth maps received after the faults.
+    pub after_faults_depth_maps: usize,
+    /// Wall time of the fault campaign and the frames after it, seconds.
+    pub faults_seconds: f64,
     /// The firmware answered every status request and shut down cleanly.
     pub alive: bool,
     /// The budgets checked (`weights/budgets.json`).
@@ -254,11 +267,14 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
     Ok(out)
 }
 
+/// Frames streamed again after the fault campaign (enough for a few depth maps).
+const AFTER_FAULTS_FRAMES: usize = 6;
+
 /// An owned device reply.
 #[derive(Debug, Clone)]
 // The texts are read through `Debug` in error messages.
 #[allow(dead_code)]
-enum Reply {
+pub(crate) enum Reply {
     Depth {
         reference: u32,
         sources: Vec<u32>,
@@ -266,6 +282,8 @@ enum Reply {
         bits: Vec<u32>,
     },
     Status(link::Status),
+    /// The device's hello reply, with its counters.
+    Hello(link::Status),
     Error {
         code: u16,
         msg: String,
@@ -292,6 +310,10 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
                 .collect(),
         },
         Ok(Message::Status { status, .. }) => Reply::Status(status),
+        Ok(Message::Hello {
+            status: Some(status),
+            ..
+        }) => Reply::Hello(status),
         Ok(Message::Error { code, msg, .. }) => Reply::Error {
             code,
             msg: msg.to_string(),
@@ -302,7 +324,7 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
 }
 
 /// QEMU running the firmware, its link socket and the reply reader.
-struct Device {
+pub(crate) struct Device {
     qemu: Child,
     link: UnixStream,
     replies: Receiver<Reply>,
@@ -418,7 +440,7 @@ impl Device {
         })
     }
 
-    fn send(&mut self, bytes: &[u8]) -> Result<()> {
+    pub(crate) fn send(&mut self, bytes: &[u8]) -> Result<()> {
         self.link.write_all(bytes).context("writing to the link")
     }
 
@@ -432,7 +454,7 @@ impl Device {
         self.send(&v)
     }
 
-    fn reply(&mut self) -> Result<Reply> {
+    pub(crate) fn reply(&mut self) -> Result<Reply> {
         match self.replies.recv_timeout(self.timeout) {
             Ok(r) => Ok(r),
             Err(RecvTimeoutError::Timeout) => bail!(
@@ -476,7 +498,7 @@ impl Drop for Device {
     }
 }
 
-fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
+pub(crate) fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
     let mut v = Vec::new();
     let _ = link::encode_raw(h, Payload::Bytes(payload), &mut |b: &[u8]| {
         v.extend_from_slice(b);
@@ -485,7 +507,7 @@ fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
     v
 }
 
-fn msg_bytes(msg: &Message<'_>) -> Vec<u8> {
+pub(crate) fn msg_bytes(msg: &Message<'_>) -> Vec<u8> {
     let mut v = Vec::new();
     let _ = link::encode(msg, &mut |b: &[u8]| {
         v.extend_from_slice(b);
@@ -621,34 +643,27 @@ fn fuzz(
     Ok(report)
 }
 
-/// Runs the SIL and returns the report.
-pub fn sil(args: &SilArgs) -> Result<SilReport> {
-    let recording = args
-        .recording
-        .clone()
-        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
-    let blob = firmware_blob()?;
-    let frames = prepare_frames(&recording, args.frames, &blob)?;
-    if frames.is_empty() {
-        bail!("{}: no frames", recording.display());
-    }
-    let elf = match &args.firmware {
-        Some(p) => p.clone(),
-        None => build_firmware()?,
-    };
-    let (flash, static_ram) = elf_sizes(&elf)?;
-    let mut device = Device::boot(&elf, Duration::from_secs(args.timeout))?;
+/// What streaming frames gave.
+struct Streamed {
+    depth_maps: usize,
+    mismatched: usize,
+    pairs_ok: bool,
+    instructions: Vec<u32>,
+    pairs: Vec<(u32, Vec<u32>)>,
+}
 
-    let mut seq = 0u32;
+/// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
+/// as the host's expectations assume) and checks each reply against the host library.
+fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<Streamed> {
     let mut depth_maps = 0;
     let mut mismatched = 0;
     let mut pairs_ok = true;
     let mut instructions = Vec::new();
     let mut pairs = Vec::new();
     for (i, f) in frames.iter().enumerate() {
-        seq += 1;
+        *seq += 1;
         device.send_msg(&Message::Frame {
-            seq,
+            seq: *seq,
             roll_deg: f.roll_deg,
             image: &f.image,
         })?;
@@ -685,6 +700,41 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
             ),
         }
     }
+    Ok(Streamed {
+        depth_maps,
+        mismatched,
+        pairs_ok,
+        instructions,
+        pairs,
+    })
+}
+
+/// Runs the SIL and returns the report.
+pub fn sil(args: &SilArgs) -> Result<SilReport> {
+    let recording = args
+        .recording
+        .clone()
+        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
+    let blob = firmware_blob()?;
+    let frames = prepare_frames(&recording, args.frames, &blob)?;
+    if frames.is_empty() {
+        bail!("{}: no frames", recording.display());
+    }
+    let elf = match &args.firmware {
+        Some(p) => p.clone(),
+        None => build_firmware()?,
+    };
+    let (flash, static_ram) = elf_sizes(&elf)?;
+    let mut device = Device::boot(&elf, Duration::from_secs(args.timeout))?;
+
+    let mut seq = 0u32;
+    let Streamed {
+        depth_maps,
+        mismatched,
+        pairs_ok,
+        instructions,
+        pairs,
+    } = stream(&mut device, &frames, &mut seq)?;
     let fuzz_report = if args.fuzz > 0 {
         Some(fuzz(
             &mut device,
@@ -696,6 +746,22 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     } else {
         None
     };
+    let faults_start = Instant::now();
+    let (faults, after) = if args.faults > 0 {
+        let (report, _) =
+            crate::faults::campaign(&mut device, args.faults, args.seed, &frames[0].image)?;
+        // The campaign ended with a hello (seq 0, cache cleared): the frames again, with the
+        // same seqs as the first time, so the same pairs and depth maps are expected.
+        let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
+        seq = 0;
+        let s = stream(&mut device, again, &mut seq)?;
+        let expected = again.iter().filter(|f| f.expected.is_some()).count();
+        let ok = s.pairs_ok && s.mismatched == 0 && s.depth_maps == expected && expected > 0;
+        (Some(report), Some((ok, s.depth_maps)))
+    } else {
+        (None, None)
+    };
+    let faults_seconds = faults_start.elapsed().as_secs_f64();
     seq += 1;
     device.send_msg(&Message::StatusRequest { seq })?;
     let status = loop {
@@ -748,6 +814,10 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         device_depth_maps: status.depth_maps,
         device_errors: status.errors,
         fuzz: fuzz_report,
+        after_faults_bit_exact: after.is_none_or(|a| a.0),
+        after_faults_depth_maps: after.map_or(0, |a| a.1),
+        faults_seconds,
+        faults,
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
@@ -791,6 +861,43 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
                 f.sent, f.error_replies, f.status_replies, f.status_requests, f.unanswered
             )?;
         }
+        if let Some(f) = &r.faults {
+            writeln!(
+                out,
+                "fault campaign (seed {}, {} rounds, {:.1} s): {} faults, {} failed; stack \
+                 high-water {} -> {} bytes",
+                f.seed,
+                f.rounds,
+                r.faults_seconds,
+                f.faults,
+                f.failed,
+                f.stack_high_water_before,
+                f.stack_high_water_after
+            )?;
+            writeln!(
+                out,
+                "  {:<22} {:>5} {:>9} {:>9}  expected code",
+                "class", "sent", "answered", "recovered"
+            )?;
+            for (class, c) in &f.classes {
+                writeln!(
+                    out,
+                    "  {class:<22} {:>5} {:>9} {:>9}  {}",
+                    c.sent,
+                    c.answered_expected,
+                    c.recovered,
+                    c.expected_code.join("/")
+                )?;
+                for failure in &c.failures {
+                    writeln!(out, "    failed: {failure}")?;
+                }
+            }
+            writeln!(
+                out,
+                "after the faults: {} depth maps, bit-exact: {}",
+                r.after_faults_depth_maps, r.after_faults_bit_exact
+            )?;
+        }
         writeln!(out, "alive: {}", r.alive)?;
         writeln!(
             out,
@@ -807,6 +914,18 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
     }
     if !r.bit_exact {
         bail!("SIL: depth maps are not bit-exact with the host library");
+    }
+    if let Some(f) = &r.faults {
+        if f.failed > 0 {
+            bail!(
+                "SIL: {} of {} faults not answered with the expected code or not recovered from",
+                f.failed,
+                f.faults
+            );
+        }
+    }
+    if !r.after_faults_bit_exact {
+        bail!("SIL: depth maps after the fault campaign are not bit-exact with the host library");
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
