@@ -34,7 +34,8 @@ PY
 for t in "${targets[@]}"; do
     printf '\n==> fuzz %s for %s s\n' "$t" "$seconds"
     log=$(mktemp)
-    if ! (cd fuzz && cargo +nightly fuzz run "$t" -- -max_total_time="$seconds" \
+    # Its own target folder (fuzz/target): sanitizer builds must not replace the host ones.
+    if ! (cd fuzz && env -u CARGO_TARGET_DIR cargo +nightly fuzz run "$t" -- -max_total_time="$seconds" \
         -rss_limit_mb=2048 -max_len=20000) >"$log" 2>&1; then
         tail -40 "$log"
         echo "fuzz target $t failed (crash input in fuzz/artifacts/$t/)"
