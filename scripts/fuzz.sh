@@ -32,6 +32,11 @@ out = b''.join(struct.pack('<If', i, (i % 3) * 7.0) + bytes([i % 2]) for i in ra
 open(sys.argv[1], 'wb').write(out)
 PY
 
+# Inputs that once failed (fuzz/regressions/<target>/) are replayed first by every run.
+for d in fuzz/regressions/*/; do
+    [ -d "$d" ] && cp "$d"* "$corpus/$(basename "$d")/"
+done
+
 for t in "${targets[@]}"; do
     printf '\n==> fuzz %s for %s s\n' "$t" "$seconds"
     log=$(mktemp)
