@@ -2,10 +2,13 @@
 # Coverage-guided fuzzing of every parser (fuzz/: cargo-fuzz, libFuzzer): the link decoder,
 # the weight blob, the spec JSON, the beam tables, the ARIS reader and the frame pairing.
 #   bash scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
-# Installs what it needs (a nightly toolchain, cargo-fuzz), seeds each corpus (encoded link
-# messages, the shipped weight blob, the spec), runs each target for SECONDS (default 30) and
-# fails on the first crash; crashes land in fuzz/artifacts/<target>/ for `cargo fuzz run
-# <target> <file>` to replay. The corpora grow in fuzz/corpus/ (not committed).
+# Installs what it needs (a nightly toolchain, cargo-fuzz), seeds each corpus, runs each target
+# for SECONDS (default 30) and fails on the first crash; crashes land in fuzz/artifacts/<target>/
+# for `cargo fuzz run <target> <file>` to replay. Seeds: the committed fuzz/corpus/<target>/seed-*
+# (a few small inputs per target, fuzz/corpus/README.md), plus, written here, the large valid
+# inputs the repo already holds (encoded frame and depth messages, the shipped weight blob, the
+# spec, a beam table, the head of the demo recording). The corpora grow in fuzz/corpus/ (only
+# the seed-* files are committed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-30}
@@ -47,6 +50,7 @@ for t in "${targets[@]}"; do
         echo "fuzz target $t failed (crash input in fuzz/artifacts/$t/)"
         exit 1
     fi
+    # The final status line: executions (#N) and edges covered (cov).
     grep -E '^(#[0-9]+.*DONE|Done [0-9]+ runs)' "$log" | tail -2
     rm -f "$log"
 done

@@ -51,5 +51,5 @@ step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
 "$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim" sil --json
 
-step "fuzzing: every parser, 20 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"
-bash scripts/fuzz.sh 20
+step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"
+bash scripts/fuzz.sh 60
