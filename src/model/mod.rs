@@ -34,9 +34,10 @@ use crate::kernels::{
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
-    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights, soft_argmax_s8::head_soft_argmax_s8,
-    soft_argmax_s8::soft_argmax_s8, soft_argmax_s8::SoftArgmaxParams,
-    soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
+    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
+    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
+    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
+    ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
