@@ -1,14 +1,25 @@
-//! A small reader and writer for NumPy `.npy` files holding float32 arrays.
+//! NumPy `.npy` files holding float32 arrays, through the `npyz` crate.
 //!
-//! Only what the sample folders need: format version 1.0, little-endian `<f4`, C order. The
-//! header is padded so that the data starts on a 64-byte boundary, as NumPy itself writes it.
+//! The sample folders hold little-endian `<f4`, C-order arrays; these functions write exactly
+//! that (NumPy's own layout: header padded so the data starts on a 64-byte boundary) and refuse
+//! anything else on reading, so a wrong file names its cause instead of being converted.
 
-use std::io::{Read, Write};
+use std::io::{Cursor, Read};
 use std::path::Path;
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{ensure, Context, Result};
+use npyz::{DType, NpyFile, NpyHeader, Order, TypeStr, WriterBuilder};
 
-const MAGIC: &[u8; 6] = b"\x93NUMPY";
+/// The one element type of the sample folders.
+const F32_LE: &str = "<f4";
+
+fn f32_le() -> DType {
+    DType::Plain(
+        F32_LE
+            .parse::<TypeStr>()
+            .expect("'<f4' is a numpy type string"),
+    )
+}
 
 /// Encodes a float32 array of `shape` (C order) as `.npy` bytes.
 pub fn encode_f32(shape: &[usize], data: &[f32]) -> Result<Vec<u8>> {
@@ -18,43 +29,25 @@ pub fn encode_f32(shape: &[usize], data: &[f32]) -> Result<Vec<u8>> {
         "npy: shape {shape:?} holds {count} elements but {} were given",
         data.len()
     );
-    let dims = match shape.len() {
-        1 => format!("({},)", shape[0]),
-        _ => format!(
-            "({})",
-            shape
-                .iter()
-                .map(|d| d.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {dims}, }}");
-    // 10 bytes of preamble, then the header, padded with spaces and ended by '\n'.
-    let unpadded = 10 + header.len() + 1;
-    let pad = (64 - unpadded % 64) % 64;
-    header.push_str(&" ".repeat(pad));
-    header.push('\n');
-    let header_len = u16::try_from(header.len()).context("npy: header too long")?;
-    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 4);
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&[1, 0]);
-    out.extend_from_slice(&header_len.to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    for v in data {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
+    let dims: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
+    let mut out = Vec::with_capacity(128 + data.len() * 4);
+    let mut writer = npyz::WriteOptions::new()
+        .dtype(f32_le())
+        .shape(&dims)
+        .writer(&mut out)
+        .begin_nd()
+        .context("npy: writing the header")?;
+    writer
+        .extend(data.iter().copied())
+        .context("npy: writing the data")?;
+    writer.finish().context("npy: finishing the array")?;
     Ok(out)
 }
 
 /// Writes a float32 array of `shape` to `path`.
 pub fn write_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
     let bytes = encode_f32(shape, data)?;
-    let mut f =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    f.write_all(&bytes)
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 
 /// A float32 array read from a `.npy` file.
@@ -66,60 +59,41 @@ pub struct ArrayF32 {
     pub data: Vec<f32>,
 }
 
-/// Decodes `.npy` bytes holding a little-endian float32 C-order array (format 1.0 or 2.0).
+/// Decodes `.npy` bytes holding a little-endian float32 C-order array (any format version).
 pub fn decode_f32(bytes: &[u8]) -> Result<ArrayF32> {
+    let mut cursor = Cursor::new(bytes);
+    let header = NpyHeader::from_reader(&mut cursor).context("npy: not a readable NumPy header")?;
+    let descr = header.dtype().descr();
     ensure!(
-        bytes.len() >= 10 && &bytes[..6] == MAGIC,
-        "npy: not a NumPy file (bad magic)"
+        header.dtype() == f32_le(),
+        "npy: element type {descr} is not little-endian float32 ('{F32_LE}')"
     );
-    let major = bytes[6];
-    let (header_len, start) = match major {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10usize),
-        2 | 3 => {
-            ensure!(bytes.len() >= 12, "npy: truncated header length");
-            (
-                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-                12,
-            )
-        }
-        v => bail!("npy: unsupported format version {v}"),
-    };
-    let end = start
-        .checked_add(header_len)
-        .filter(|&e| e <= bytes.len())
-        .context("npy: header runs past the end of the file")?;
-    let header = std::str::from_utf8(&bytes[start..end]).context("npy: header is not text")?;
-    let descr = dict_value(header, "descr").context("npy: header has no 'descr'")?;
     ensure!(
-        descr.trim_matches(|c| c == '\'' || c == '"') == "<f4",
-        "npy: element type {descr} is not little-endian float32 ('<f4')"
+        header.order() == Order::C,
+        "npy: Fortran order is not supported"
     );
-    let fortran = dict_value(header, "fortran_order").context("npy: no 'fortran_order'")?;
-    ensure!(fortran == "False", "npy: Fortran order is not supported");
-    let shape_text = dict_value(header, "shape").context("npy: header has no 'shape'")?;
-    let shape: Vec<usize> = shape_text
-        .trim_matches(|c| c == '(' || c == ')')
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("npy: bad shape {shape_text}"))?;
+    let shape = header
+        .shape()
+        .iter()
+        .map(|&d| usize::try_from(d))
+        .collect::<Result<Vec<_>, _>>()
+        .context("npy: shape too large")?;
     let count = shape
         .iter()
         .try_fold(1usize, |a, &d| a.checked_mul(d))
         .context("npy: shape overflows")?;
-    let payload = &bytes[end..];
+    // The payload must be exactly the array: a short or long file is refused, not cut.
+    let start = usize::try_from(cursor.position()).context("npy: header too long")?;
+    let payload = bytes.get(start..).unwrap_or_default();
     ensure!(
-        payload.len() == count * 4,
+        Some(payload.len()) == count.checked_mul(4),
         "npy: shape {shape:?} needs {} data bytes, file has {}",
-        count * 4,
+        count.saturating_mul(4),
         payload.len()
     );
-    let data = payload
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let data = NpyFile::with_header(header, payload)
+        .into_vec::<f32>()
+        .context("npy: reading the data")?;
     Ok(ArrayF32 { shape, data })
 }
 
@@ -130,19 +104,6 @@ pub fn read_f32(path: &Path) -> Result<ArrayF32> {
         .and_then(|mut f| f.read_to_end(&mut bytes))
         .with_context(|| format!("reading {}", path.display()))?;
     decode_f32(&bytes).with_context(|| format!("in {}", path.display()))
-}
-
-/// The value text of `key` in the header's Python dict literal (`'key': value`).
-fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let pat = format!("'{key}':");
-    let at = header.find(&pat)? + pat.len();
-    let rest = header[at..].trim_start();
-    let end = if rest.starts_with('(') {
-        rest.find(')')? + 1
-    } else {
-        rest.find([',', '}'])?
-    };
-    Some(rest[..end].trim())
 }
 
 #[cfg(test)]
@@ -175,7 +136,8 @@ mod tests {
         assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
         let hl = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
         let header = std::str::from_utf8(&bytes[10..10 + hl]).unwrap();
-        assert!(header.starts_with("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2), }"));
+        // npyz writes the shape with a trailing comma, a tuple literal NumPy reads as (2, 2).
+        assert!(header.starts_with("{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2, ), }"));
         assert!(header.ends_with('\n'));
         assert_eq!(&bytes[10 + hl..10 + hl + 4], &1.0f32.to_le_bytes());
     }
@@ -187,8 +149,21 @@ mod tests {
         let mut bytes = encode_f32(&[2], &[1.0, 2.0]).unwrap();
         bytes.pop();
         assert!(decode_f32(&bytes).is_err());
-        let f8 = encode_f32(&[1], &[1.0]).unwrap();
-        let text = String::from_utf8_lossy(&f8).replace("<f4", "<f8");
-        assert!(decode_f32(text.as_bytes()).is_err());
+        // Header edits in place on the bytes (the data is not UTF-8), lengths kept.
+        let edit = |from: &[u8], to: &[u8]| {
+            let mut b = encode_f32(&[1], &[1.0]).unwrap();
+            let at = b.windows(from.len()).position(|w| w == from).unwrap();
+            b[at..at + to.len()].copy_from_slice(to);
+            b
+        };
+        let err = decode_f32(&edit(b"<f4", b"<f8")).unwrap_err();
+        assert!(format!("{err:#}").contains("float32"), "{err:#}");
+        // Trailing bytes past the array are refused too.
+        let mut long = encode_f32(&[1], &[1.0]).unwrap();
+        long.push(0);
+        assert!(decode_f32(&long).is_err());
+        // Fortran order is refused, not read transposed.
+        let err = decode_f32(&edit(b"False", b"True ")).unwrap_err();
+        assert!(format!("{err:#}").contains("Fortran"), "{err:#}");
     }
 }
