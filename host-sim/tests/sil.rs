@@ -111,3 +111,45 @@ fn recording_with_unfit_geometry_is_refused() {
         "stderr: {err}"
     );
 }
+
+#[test]
+fn short_soak_keeps_maps_bit_exact_and_the_stack_unchanged() {
+    // One block (19 faults, a hello, the 3 frames again): the soak's bookkeeping on a run short
+    // enough for CI; docs/LINK.md has the figures of a 5,000-message soak.
+    let out = host_sim()
+        .args([
+            "sil", "--frames", "3", "--soak", "40", "--seed", "5", "--json",
+        ])
+        .output()
+        .expect("run host-sim sil --soak");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "host-sim sil --soak failed: {}\n{}",
+        stdout,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    let s = &r["soak"];
+    let blocks = s["blocks"].as_u64().unwrap();
+    assert!(blocks >= 1, "{s}");
+    assert!(s["messages"].as_u64().unwrap() >= 40, "{s}");
+    assert_eq!(s["valid_frames"].as_u64().unwrap(), 3 * blocks);
+    assert_eq!(s["depth_maps"].as_u64().unwrap(), 2 * blocks, "{s}");
+    assert_eq!(s["expected_depth_maps"], s["depth_maps"]);
+    assert_eq!(s["mismatched_values"], 0);
+    assert_eq!(s["stack_unchanged"], true);
+    assert!(s["stack_high_water_before"].as_u64().unwrap() > 0);
+    // The same table as the campaign: every class sent once per block, answered, recovered.
+    let f = &r["faults"];
+    let classes = f["classes"].as_object().unwrap();
+    assert_eq!(classes.len(), epssn_sil::faults::CLASSES.len(), "{f}");
+    for (name, c) in classes {
+        assert_eq!(c["sent"].as_u64(), Some(blocks), "{name}: {c}");
+        assert_eq!(c["answered_expected"], c["sent"], "{name}: {c}");
+        assert_eq!(c["recovered"], c["sent"], "{name}: {c}");
+    }
+    assert_eq!(f["failed"], 0);
+    assert_eq!(r["after_faults_bit_exact"], true);
+    assert_eq!(r["alive"], true);
+}

@@ -43,6 +43,9 @@ pub struct FaultReport {
     pub classes: BTreeMap<String, ClassReport>,
     /// Faults sent in all.
     pub faults: usize,
+    /// Messages sent in all, valid and faulty: one per reply the oracle predicts (a fault's
+    /// garbage, the status request after it, the hellos).
+    pub messages: usize,
     /// Faults not answered as expected or not recovered from.
     pub failed: usize,
     /// Error replies received during the campaign.
@@ -51,6 +54,28 @@ pub struct FaultReport {
     pub stack_high_water_before: u32,
     /// After.
     pub stack_high_water_after: u32,
+}
+
+impl FaultReport {
+    /// Adds `other`'s counts (a later block of a soak) to these; the stack high-water before
+    /// stays this report's, the one after becomes `other`'s.
+    pub fn merge(&mut self, other: FaultReport) {
+        for (class, c) in other.classes {
+            let e = self.classes.entry(class).or_default();
+            e.sent += c.sent;
+            e.expected_code = c.expected_code;
+            e.answered_expected += c.answered_expected;
+            e.recovered += c.recovered;
+            let room = 5usize.saturating_sub(e.failures.len());
+            e.failures.extend(c.failures.into_iter().take(room));
+        }
+        self.rounds += other.rounds;
+        self.faults += other.faults;
+        self.messages += other.messages;
+        self.failed += other.failed;
+        self.error_replies += other.error_replies;
+        self.stack_high_water_after = other.stack_high_water_after;
+    }
 }
 
 /// A reply the oracle predicts.
@@ -446,6 +471,7 @@ pub(crate) fn campaign(
     };
     let hello = c.hello(0);
     report.stack_high_water_before = start(&mut c, &hello)?;
+    report.messages += 1;
     for _ in 0..rounds {
         for class in CLASSES {
             let fault = c.fault(class);
@@ -457,6 +483,7 @@ pub(crate) fn campaign(
             let mut lost = None;
             for chunk in &fault.chunks {
                 let want = predict(&mut c.oracle, chunk);
+                report.messages += want.len();
                 c.device.send(chunk)?;
                 for _ in 0..want.len() {
                     match c.device.reply() {
@@ -505,6 +532,7 @@ pub(crate) fn campaign(
     }
     let hello = c.hello(0);
     report.stack_high_water_after = start(&mut c, &hello)?;
+    report.messages += 1;
     Ok((report, c.seq))
 }
 

@@ -5,6 +5,8 @@
 //! map (the firmware's timer ticks × 40 under `-icount shift=0`), flash and RAM from the ELF
 //! sections plus the measured stack high-water mark. `--fuzz N` then sends N malformed
 //! messages interleaved with status requests and checks that the firmware always answers.
+//! `--faults N` (default 2) runs the fault campaign of `faults.rs`; `--soak N` instead sends at
+//! least N valid and faulty messages in blocks and checks the stack high-water mark is unchanged.
 //! `--serial PORT` runs the same checks against a real board (boards/stm32h743) on a serial
 //! port instead of QEMU; its figures are then core cycles, and the QEMU budgets are not applied.
 
@@ -51,6 +53,12 @@ pub struct SilArgs {
     /// against the library decoder's verdict, then a hello and valid frames checked bit for bit.
     #[arg(long, default_value_t = 2)]
     pub faults: usize,
+    /// Soak (docs/LINK.md): instead of the fault campaign, at least this many messages (N ≥
+    /// 5,000 for the issue's soak), valid and faulty: blocks of one round of every fault class
+    /// followed by a hello and valid frames whose depth maps must be bit-exact; the stack
+    /// high-water must end where it began.
+    #[arg(long, default_value_t = 0)]
+    pub soak: usize,
     /// Seed of the fuzz run and the fault campaign.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -83,6 +91,31 @@ pub struct FuzzReport {
     pub status_replies: usize,
     /// Malformed messages that got no error reply before the next status reply.
     pub unanswered: usize,
+}
+
+/// What a soak (`--soak N`) adds to the fault campaign's table.
+#[derive(Serialize, Debug, Clone, Default, PartialEq)]
+pub struct SoakReport {
+    /// Messages sent, valid and faulty (the campaign's messages plus the valid frames).
+    pub messages: usize,
+    /// Blocks: one round of every fault class, then a hello and valid frames.
+    pub blocks: usize,
+    /// Valid frames sent between the blocks.
+    pub valid_frames: usize,
+    /// Depth maps received for them.
+    pub depth_maps: usize,
+    /// Depth maps the host library expected for them.
+    pub expected_depth_maps: usize,
+    /// Values that differed from the host library, over all of them.
+    pub mismatched_values: usize,
+    /// Stack high-water mark at the soak's first hello and at its last, bytes.
+    pub stack_high_water_before: u32,
+    /// At the last hello.
+    pub stack_high_water_after: u32,
+    /// The two are equal: no path of the soak went deeper than the valid frames before it.
+    pub stack_unchanged: bool,
+    /// Wall time, seconds.
+    pub seconds: f64,
 }
 
 /// The result of a SIL run.
@@ -130,8 +163,10 @@ pub struct SilReport {
     pub device_errors: u32,
     /// The fuzz run, if any.
     pub fuzz: Option<FuzzReport>,
-    /// The fault campaign, if any.
+    /// The fault campaign, if any (with `--soak`, the soak's blocks summed).
     pub faults: Option<crate::faults::FaultReport>,
+    /// The soak, with `--soak N`.
+    pub soak: Option<SoakReport>,
     /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
     /// the host library (pairs and feature cache included); true without a campaign.
     pub after_faults_bit_exact: bool,
@@ -755,6 +790,52 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
     })
 }
 
+/// The soak of `--soak n`: blocks of one fault round of every class (a new seed each) and the
+/// first frames again after its closing hello, until `n` messages are sent. Returns the
+/// campaign table summed over the blocks and the soak's own figures.
+fn soak(
+    device: &mut Device,
+    n: usize,
+    seed: u64,
+    frames: &[HostFrame],
+) -> Result<(crate::faults::FaultReport, SoakReport)> {
+    let start = Instant::now();
+    let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
+    let mut total: Option<crate::faults::FaultReport> = None;
+    let mut s = SoakReport::default();
+    let mut pairs_ok = true;
+    while s.messages < n {
+        let block_seed = seed.wrapping_add(s.blocks as u64);
+        let (report, _) = crate::faults::campaign(device, 1, block_seed, &frames[0].image)?;
+        s.messages += report.messages;
+        match &mut total {
+            None => total = Some(report),
+            Some(t) => t.merge(report),
+        }
+        // The block ended with a hello (seq 0, cache cleared): same seqs, same pairs.
+        let mut seq = 0;
+        let streamed = stream(device, again, &mut seq)?;
+        s.messages += again.len();
+        s.valid_frames += again.len();
+        s.depth_maps += streamed.depth_maps;
+        s.expected_depth_maps += again.iter().filter(|f| f.expected.is_some()).count();
+        s.mismatched_values += streamed.mismatched;
+        pairs_ok &= streamed.pairs_ok;
+        s.blocks += 1;
+    }
+    let mut total = total.unwrap_or_default();
+    total.seed = seed;
+    s.stack_high_water_before = total.stack_high_water_before;
+    s.stack_high_water_after = total.stack_high_water_after;
+    s.stack_unchanged = s.stack_high_water_before == s.stack_high_water_after;
+    s.seconds = start.elapsed().as_secs_f64();
+    if !pairs_ok {
+        // Counted as mismatches so the bit-exact verdict below fails.
+        s.mismatched_values = s.mismatched_values.max(1);
+    }
+    Ok((total, s))
+}
+
 /// Runs the SIL and returns the report.
 pub fn sil(args: &SilArgs) -> Result<SilReport> {
     let recording = args
@@ -807,7 +888,16 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         None
     };
     let faults_start = Instant::now();
-    let (faults, after) = if args.faults > 0 {
+    let mut soak_report = None;
+    let (faults, after) = if args.soak > 0 {
+        let (report, s) = soak(&mut device, args.soak, args.seed, &frames)?;
+        let ok = s.mismatched_values == 0
+            && s.depth_maps == s.expected_depth_maps
+            && s.expected_depth_maps > 0;
+        let maps = s.depth_maps;
+        soak_report = Some(s);
+        (Some(report), Some((ok, maps)))
+    } else if args.faults > 0 {
         let (report, _) =
             crate::faults::campaign(&mut device, args.faults, args.seed, &frames[0].image)?;
         // The campaign ended with a hello (seq 0, cache cleared): the frames again, with the
@@ -893,6 +983,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         after_faults_depth_maps: after.map_or(0, |a| a.1),
         faults_seconds,
         faults,
+        soak: soak_report,
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
@@ -972,6 +1063,23 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
                 "after the faults: {} depth maps, bit-exact: {}",
                 r.after_faults_depth_maps, r.after_faults_bit_exact
             )?;
+            if let Some(s) = &r.soak {
+                writeln!(
+                    out,
+                    "soak: {} messages in {} blocks ({:.1} s), {} valid frames, {} of {} depth \
+                     maps, {} values differ; stack high-water {} -> {} bytes (unchanged: {})",
+                    s.messages,
+                    s.blocks,
+                    s.seconds,
+                    s.valid_frames,
+                    s.depth_maps,
+                    s.expected_depth_maps,
+                    s.mismatched_values,
+                    s.stack_high_water_before,
+                    s.stack_high_water_after,
+                    s.stack_unchanged
+                )?;
+            }
         }
         writeln!(out, "alive: {}", r.alive)?;
         writeln!(
@@ -1001,6 +1109,15 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
     }
     if !r.after_faults_bit_exact {
         bail!("SIL: depth maps after the fault campaign are not bit-exact with the host library");
+    }
+    if let Some(s) = &r.soak {
+        if !s.stack_unchanged {
+            bail!(
+                "SIL: the soak moved the stack high-water mark from {} to {} bytes",
+                s.stack_high_water_before,
+                s.stack_high_water_after
+            );
+        }
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
