@@ -1,13 +1,13 @@
 //! Labelled depth-map figures: panels side by side, each with its title, azimuth and
 //! elevation axes in degrees and a colour bar in metres (depth) or millimetres (error). Text is
-//! drawn with the public-domain 8 × 8 bitmap font of `font8x8`, so no font file is needed.
+//! drawn with the 8 × 8 bitmap font of `epssn_sim::draw`, so no font file is needed.
 
 use epssn::config::{
     DEPTH_COLUMNS, DEPTH_ROWS, DEPTH_ROW_ELEVATION_RAD, INPUT_COLUMN_AZIMUTH_RAD, R_MAX_M, R_MIN_M,
 };
-use font8x8::{UnicodeFonts, BASIC_FONTS};
 use image::{Rgb, RgbImage};
 
+use epssn_sim::draw::{draw_text, fill, text_width};
 use epssn_sim::preview::turbo;
 
 /// What a panel shows and how it is coloured.
@@ -46,39 +46,6 @@ const BAR_LABELS: u32 = 44;
 const GAP: u32 = 8;
 const INK: Rgb<u8> = Rgb([20, 20, 20]);
 const PAPER: Rgb<u8> = Rgb([255, 255, 255]);
-
-/// Width of a text in pixels.
-fn text_width(s: &str) -> u32 {
-    8 * s.chars().count() as u32
-}
-
-/// Draws `s` with its top-left corner at `(x, y)`.
-fn draw_text(img: &mut RgbImage, x: i64, y: i64, s: &str, colour: Rgb<u8>) {
-    for (n, ch) in s.chars().enumerate() {
-        let Some(glyph) = BASIC_FONTS.get(ch) else {
-            continue;
-        };
-        for (row, bits) in glyph.iter().enumerate() {
-            for col in 0..8 {
-                if bits >> col & 1 == 1 {
-                    let (px, py) = (x + 8 * n as i64 + col, y + row as i64);
-                    if px >= 0 && py >= 0 && (px as u32) < img.width() && (py as u32) < img.height()
-                    {
-                        img.put_pixel(px as u32, py as u32, colour);
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn fill(img: &mut RgbImage, x: u32, y: u32, w: u32, h: u32, c: Rgb<u8>) {
-    for py in y..(y + h).min(img.height()) {
-        for px in x..(x + w).min(img.width()) {
-            img.put_pixel(px, py, c);
-        }
-    }
-}
 
 /// Horizontal pixel (from the map's left edge) of azimuth `deg`: columns are drawn with the
 /// sonar's left (positive azimuth, the last column) on the left; `None` outside the fan.

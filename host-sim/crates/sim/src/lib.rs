@@ -1,10 +1,11 @@
 //! The sonar scene simulator of the epssn host tools: scenes, ray-cast ARIS views with exact
-//! ground truth, simulated datasets on disk, previews, the accuracy metrics against ground
+//! ground truth, simulated datasets on disk, previews and the figures' drawing helpers, the accuracy metrics against ground
 //! truth (MAE, masked MAE, CD), and the deterministic generator of test and bring-up data.
 
 #![deny(missing_docs)]
 
 pub mod dataset;
+pub mod draw;
 pub mod groundtruth;
 pub mod metrics;
 pub mod preview;

@@ -1,4 +1,5 @@
-//! Loss-curve PNG drawn with the `image` crate (no font files needed: a 3×5 digit font).
+//! Loss-curve PNG drawn with the `image` crate and the shared helpers of `epssn_sim::draw`
+//! (text in its 8 × 8 bitmap font: no font file needed).
 //!
 //! Train loss is blue, validation loss orange; x = epoch, y = loss (linear). The y-axis labels
 //! give the top and bottom values.
@@ -6,6 +7,7 @@
 use std::path::Path;
 
 use anyhow::Result;
+use epssn_sim::draw::{draw_text, line, put, text_width};
 use image::{Rgb, RgbImage};
 
 const W: u32 = 640;
@@ -14,78 +16,6 @@ const LEFT: i64 = 60;
 const RIGHT: i64 = 20;
 const TOP: i64 = 20;
 const BOTTOM: i64 = 30;
-
-/// 3×5 glyphs of `0-9 . - e`, rows top to bottom, bit 2 = left column.
-fn glyph(c: char) -> Option<[u8; 5]> {
-    Some(match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        '-' => [0, 0, 7, 0, 0],
-        'e' => [7, 5, 7, 4, 7],
-        _ => return None,
-    })
-}
-
-fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
-    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
-        img.put_pixel(x as u32, y as u32, c);
-    }
-}
-
-fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, c: Rgb<u8>) {
-    let scale = 2;
-    for (i, ch) in s.chars().enumerate() {
-        if let Some(g) = glyph(ch) {
-            for (row, bits) in g.iter().enumerate() {
-                for col in 0..3 {
-                    if bits & (4 >> col) != 0 {
-                        for dy in 0..scale {
-                            for dx in 0..scale {
-                                put(
-                                    img,
-                                    x + (i as i64 * 4 + col) * scale + dx,
-                                    y + row as i64 * scale + dy,
-                                    c,
-                                );
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn line(img: &mut RgbImage, (x0, y0): (i64, i64), (x1, y1): (i64, i64), c: Rgb<u8>) {
-    let (dx, dy) = ((x1 - x0).abs(), -(y1 - y0).abs());
-    let (sx, sy) = (if x0 < x1 { 1 } else { -1 }, if y0 < y1 { 1 } else { -1 });
-    let (mut x, mut y, mut err) = (x0, y0, dx + dy);
-    loop {
-        put(img, x, y, c);
-        put(img, x, y + 1, c);
-        if x == x1 && y == y1 {
-            break;
-        }
-        let e2 = 2 * err;
-        if e2 >= dy {
-            err += dy;
-            x += sx;
-        }
-        if e2 <= dx {
-            err += dx;
-            y += sy;
-        }
-    }
-}
 
 /// Draws the curves `(x, y)` (NaN points skipped) to a PNG.
 pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Result<()> {
@@ -131,26 +61,27 @@ pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Res
         (W as i64 - RIGHT, H as i64 - BOTTOM),
         black,
     );
-    text(&mut img, 4, TOP - 4, &format!("{y1:.3}"), black);
-    text(
+    let x_end = format!("{x1:.0}");
+    draw_text(&mut img, 4, TOP - 4, &format!("{y1:.3}"), black);
+    draw_text(
         &mut img,
         4,
-        H as i64 - BOTTOM - 6,
+        H as i64 - BOTTOM - 4,
         &format!("{y0:.3}"),
         black,
     );
-    text(
+    draw_text(
         &mut img,
         LEFT,
         H as i64 - BOTTOM + 8,
         &format!("{x0:.0}"),
         black,
     );
-    text(
+    draw_text(
         &mut img,
-        W as i64 - RIGHT - 40,
+        W as i64 - RIGHT - text_width(&x_end) as i64,
         H as i64 - BOTTOM + 8,
-        &format!("{x1:.0}"),
+        &x_end,
         black,
     );
     for (pts, c) in [(train, Rgb([31, 119, 180])), (val, Rgb([255, 127, 14]))] {
@@ -171,4 +102,42 @@ pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Res
     }
     img.save(path)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plot_has_curves_and_labels() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("loss.png");
+        let train: Vec<(f64, f64)> = (0..10)
+            .map(|e| (e as f64, 1.0 / (1.0 + e as f64)))
+            .collect();
+        let val: Vec<(f64, f64)> = (0..10)
+            .map(|e| {
+                (
+                    e as f64,
+                    if e == 3 {
+                        f64::NAN
+                    } else {
+                        0.8 / (1.0 + e as f64)
+                    },
+                )
+            })
+            .collect();
+        plot_losses(&path, &train, &val).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (W, H));
+        let count = |c: [u8; 3]| img.pixels().filter(|p| p.0 == c).count();
+        assert!(count([31, 119, 180]) > 100, "train curve");
+        assert!(count([255, 127, 14]) > 100, "validation curve");
+        // The top y label "1.000" in the left margin: black text pixels left of the axis.
+        let label = (0..LEFT as u32 - 2)
+            .flat_map(|x| (0..TOP as u32 + 8).map(move |y| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y).0 == [0, 0, 0])
+            .count();
+        assert!(label > 20, "y label drawn ({label} pixels)");
+    }
 }
