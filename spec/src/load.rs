@@ -158,10 +158,16 @@ pub const DEFAULT_SPEC_FILE: &str = "epssn-s.json";
 /// `memory.x`, `budgets.json`), `<name>-<spec file stem>.<ext>` for any other
 /// (`memory-epssn-p.x`, `budgets-epssn-p.json`).
 pub fn per_spec_file(dir: &Path, name: &str, ext: &str, spec_file: &str) -> PathBuf {
+    dir.join(format!("{}.{ext}", per_spec_name(name, spec_file)))
+}
+
+/// A name kept per configuration: `name` for the default spec, `name-<spec file stem>` for any
+/// other (the demo's ground truth: `gt/`, `gt-epssn-p/`).
+pub fn per_spec_name(name: &str, spec_file: &str) -> String {
     if spec_file == DEFAULT_SPEC_FILE {
-        return dir.join(format!("{name}.{ext}"));
+        return name.into();
     }
-    dir.join(format!("{name}-{}.{ext}", spec_stem(spec_file)))
+    format!("{name}-{}", spec_stem(spec_file))
 }
 
 /// A spec file's name without `.json`: `epssn-p` for `epssn-p.json`.
