@@ -3,16 +3,14 @@
 //! The spec types, the spec loader, the beam-table parser and the geometry are `epssn-spec`'s,
 //! the very crate the library runs, so build-time tables and run-time code cannot disagree.
 
-use epssn_spec::load::{beam_table_path, load_beam_table, load_spec};
+use epssn_spec::load::{beam_table_path, build_spec_path, load_beam_table, load_spec};
 use epssn_spec::{grids, spec};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
-    let spec_path = std::env::var("EPSSN_SPEC")
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| root.join("weights/epssn-s.json"));
+    let spec_path = build_spec_path(&root);
     println!("cargo:rerun-if-changed={}", spec_path.display());
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
     let loaded = load_spec(&spec_path).unwrap_or_else(|e| panic!("{e}"));
@@ -25,7 +23,19 @@ fn main() {
     let beam_deg = load_beam_table(&root, table)
         .unwrap_or_else(|e| panic!("{e}"))
         .centre_deg;
-    let out = generate(&spec, &beam_deg, loaded.hash);
+    let mut out = generate(&spec, &beam_deg, loaded.hash);
+    let spec_file = spec_path.canonicalize().unwrap_or_else(|e| panic!("{e}"));
+    writeln!(
+        out,
+        "/// The model spec file this build was generated from, as text (for host tools that\n/// load the same spec at run time; unused on the device, so not linked there).\npub const SPEC_JSON: &str = include_str!({:?});\n/// That file's name (`epssn-s.json` by default; `EPSSN_SPEC` names another).\npub const SPEC_FILE_NAME: &str = {:?};\n/// The int8 blob's file name in a weights folder of this spec (`<spec file stem>.q8.bin`).\npub const BLOB_FILE_NAME: &str = {:?};",
+        spec_file.display().to_string(),
+        spec_file.file_name().and_then(|n| n.to_str()).unwrap_or_default(),
+        format!(
+            "{}.q8.bin",
+            spec_file.file_stem().and_then(|n| n.to_str()).unwrap_or_default()
+        )
+    )
+    .unwrap();
     let out_path = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("config.rs");
     std::fs::write(&out_path, out).unwrap();
 }

@@ -35,8 +35,8 @@ fn main() {
         .and_then(|a| a.parse().ok())
         .unwrap_or(3.0);
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let pointer = std::fs::read_to_string(root.join("weights/FIRMWARE_WEIGHTS")).unwrap();
-    let blob = std::fs::read(root.join(pointer.trim())).unwrap();
+    let blob_path = epssn_spec::load::firmware_blob(root, config::SPEC_FILE_NAME).unwrap();
+    let blob = std::fs::read(blob_path).unwrap();
     let model = Model::from_blob(&blob).expect("weight blob");
     let mut ws = Box::new(Workspace::new());
     let images = [image(1), image(2)];

@@ -22,7 +22,7 @@ command -v cargo-fuzz >/dev/null 2>&1 || cargo install --locked cargo-fuzz
 corpus=fuzz/corpus
 mkdir -p "$corpus"/{link_decoder,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing}
 cargo run -q --example link_seeds -- "$corpus/link_decoder"
-cp "$(tr -d '[:space:]' < weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
+cp "$(awk '$1 == "epssn-s.json" { print $2 }' weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
 cp "$corpus/model_from_blob/shipped.q8.bin" "$corpus/model_from_blob_fixed/shipped.q8.bin"
 cp weights/epssn-s.json "$corpus/spec_json/epssn-s.json"
 cp data/aris-beam-widths/ARIS3000_128.csv "$corpus/beam_table/"

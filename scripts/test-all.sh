@@ -61,5 +61,21 @@ step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
 "$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim" sil --json
 
+step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance tests, QEMU, SIL"
+# The second configuration from the same code, in its own target directories (target/epssn-p,
+# firmware/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
+# (the SIL runs through epssn-sil, the sil crate's own binary).
+p_start=$SECONDS
+EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil \
+    --target-dir target/epssn-p
+# The kernels' whole-network checks at EPSSN-P's shapes (the random-shape ones are EPSSN-S's).
+EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-reference --test bitexact_kernels network \
+    --target-dir target/epssn-p
+(cd firmware && EPSSN_SPEC=weights/epssn-p.json timeout 600 \
+    cargo run --release --target-dir target/epssn-p)
+EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
+    --frames 3 --faults 0 --json
+echo "(EPSSN-P step $((SECONDS - p_start)) s)"
+
 step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"
 bash scripts/fuzz.sh 60

@@ -3,6 +3,10 @@
 # held-out tables, one per scene.
 #   bash scripts/train-general.sh TRAIN_PER_SCENE TEST_PER_SCENE EPOCHS [DATA_ROOT] [SPEC]
 # HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
+# WEIGHTS=weights/paper trains into another folder; for another spec the binary must be built
+# from it (EPSSN_SPEC, docs/PAPER.md), as must the data (the simulator draws the spec's grid).
+# SEARCH_PASSES (default 2) sets the quantiser's search passes; INIT_FROM=weights/general starts
+# from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random.
 # Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
 # does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
 # the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
@@ -11,6 +15,7 @@
 # with the same command (--resume).
 set -euo pipefail
 train_n=$1 test_n=$2 epochs=$3 root=${4:-out/epssn-data} spec=${5:-weights/epssn-s.json}
+weights=${WEIGHTS:-weights/general} passes=${SEARCH_PASSES:-2}
 val_n=${VAL_PER_SCENE:-100}
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
@@ -42,10 +47,10 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 # --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
-  --val-limit $((3 * val_n)) --resume
-"${hs[@]}" quantise --weights weights/general --calib "$mix" --calibration-samples 64 --percentile 99.99 \
-  --search --search-passes 2
+  --val-limit $((3 * val_n)) --resume --out "$weights" ${INIT_FROM:+--init-from "$INIT_FROM"}
+"${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples 64 --percentile 99.99 \
+  --search --search-passes "$passes"
 for scene in "${scenes[@]}"; do
-  "${hs[@]}" eval --weights weights/general --data "$root/$scene" --views 2 --json --int8 \
-    >"weights/general/eval-$scene.json"
+  "${hs[@]}" eval --weights "$weights" --data "$root/$scene" --views 2 --json --int8 \
+    >"$weights/eval-$scene.json"
 done

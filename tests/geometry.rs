@@ -31,14 +31,18 @@ fn generated_grids_follow_the_beam_table() {
     let beams = model_beam_centres_deg();
     assert_eq!(beams.len(), config::BEAMS);
     assert!(beams[0] < 0.0, "beam 0 is the right-most, negative angle");
+    // A column is the mean angle of its group of beams (pairs in EPSSN-S, single beams in
+    // EPSSN-P).
+    let group = config::BEAMS / config::INPUT_COLUMNS;
     for k in 0..config::INPUT_COLUMNS {
-        let expect = (beams[2 * k] + beams[2 * k + 1]).to_radians() / 2.0;
+        let sum: f64 = beams[group * k..group * (k + 1)].iter().sum();
+        let expect = (sum / group as f64).to_radians();
         assert!((config::INPUT_COLUMN_AZIMUTH_RAD[k] - expect).abs() < 1e-12);
     }
     // The table is not a linear fan: column spacing varies.
     let d =
         |k: usize| config::INPUT_COLUMN_AZIMUTH_RAD[k + 1] - config::INPUT_COLUMN_AZIMUTH_RAD[k];
-    assert!((d(0) - d(31)).abs() > 1e-5);
+    assert!((d(0) - d(config::INPUT_COLUMNS / 2 - 1)).abs() > 1e-5);
     let half = 7f64.to_radians();
     assert!((config::PLANE_ELEVATION_RAD[0] + half).abs() < 1e-12);
     assert!((config::PLANE_ELEVATION_RAD[config::PLANES - 1] - half).abs() < 1e-12);
@@ -173,7 +177,7 @@ fn general_table_with_lever_arm_changes_range_and_reduces_to_pure_roll() {
 }
 
 #[test]
-fn resampling_native_frames_averages_beam_pairs_and_sample_pairs() {
+fn resampling_native_frames_averages_beam_groups_and_sample_groups() {
     let beams = model_beam_centres_deg();
     let beam_rad: Vec<f64> = beams.iter().map(|d| d.to_radians()).collect();
     // An ARIS 3000 frame whose samples are exactly 3 mm apart from r_min: sample s, beam k
@@ -206,14 +210,18 @@ fn resampling_native_frames_averages_beam_pairs_and_sample_pairs() {
         &mut out,
     )
     .unwrap();
+    // Each bin covers `rows` samples and `group` beams (2 × 2 in EPSSN-S, 1 × 1 in EPSSN-P).
+    let (rows, group) = (512 / config::INPUT_RANGE_BINS, 128 / config::INPUT_COLUMNS);
     for i in 0..config::INPUT_RANGE_BINS {
         for k in 0..config::INPUT_COLUMNS {
             let v = |s: usize, b: usize| data[s * 128 + b] as f64;
-            let mean = (v(2 * i, 2 * k)
-                + v(2 * i, 2 * k + 1)
-                + v(2 * i + 1, 2 * k)
-                + v(2 * i + 1, 2 * k + 1))
-                / 4.0;
+            let mut sum = 0.0;
+            for s in rows * i..rows * (i + 1) {
+                for b in group * k..group * (k + 1) {
+                    sum += v(s, b);
+                }
+            }
+            let mean = sum / (rows * group) as f64;
             let expect = (mean + 0.5).floor() as u8;
             assert!(
                 (out[i * config::INPUT_COLUMNS + k] as i32 - expect as i32).abs() <= 1,
@@ -223,14 +231,33 @@ fn resampling_native_frames_averages_beam_pairs_and_sample_pairs() {
     }
     // Bad shapes are errors, not panics.
     assert!(
-        geometry::resample_to_grid(&data[1..], ranges, &beam_rad, &grid, 256, &mut out).is_err()
+        geometry::resample_to_grid(
+            &data[1..],
+            ranges,
+            &beam_rad,
+            &grid,
+            config::INPUT_RANGE_BINS,
+            &mut out
+        )
+        .is_err()
     );
-    assert!(geometry::resample_to_grid(&data, ranges, &beam_rad, &grid, 255, &mut out).is_err());
+    let fewer_bins = config::INPUT_RANGE_BINS - 1;
+    assert!(
+        geometry::resample_to_grid(&data, ranges, &beam_rad, &grid, fewer_bins, &mut out).is_err()
+    );
     let bad = geometry::SampleRanges {
         step: f64::NAN,
         ..ranges
     };
-    assert!(geometry::resample_to_grid(&data, bad, &beam_rad, &grid, 256, &mut out).is_err());
+    assert!(geometry::resample_to_grid(
+        &data,
+        bad,
+        &beam_rad,
+        &grid,
+        config::INPUT_RANGE_BINS,
+        &mut out
+    )
+    .is_err());
 }
 
 #[test]
@@ -247,7 +274,7 @@ fn runtime_grids_equal_build_time_tables() {
     }
 }
 
+/// The spec the library was built from (`EPSSN_SPEC`, default `weights/epssn-s.json`).
 fn serde_json_from_spec() -> epssn::spec::ModelSpec {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/epssn-s.json");
-    epssn_aris::spec::load_spec(std::path::Path::new(path)).unwrap()
+    epssn_aris::spec::built_spec().unwrap()
 }

@@ -34,15 +34,15 @@ fn main() {
     let root = manifest.join("../..");
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap());
 
-    let pointer = root.join("weights/FIRMWARE_WEIGHTS");
-    println!("cargo:rerun-if-changed={}", pointer.display());
+    println!(
+        "cargo:rerun-if-changed={}",
+        root.join("weights/FIRMWARE_WEIGHTS").display()
+    );
     println!("cargo:rerun-if-env-changed=EPSSN_BLOB");
     let blob_path = match std::env::var("EPSSN_BLOB") {
         Ok(p) => PathBuf::from(p),
-        Err(_) => {
-            let rel = std::fs::read_to_string(&pointer).expect("read weights/FIRMWARE_WEIGHTS");
-            root.join(rel.trim())
-        }
+        Err(_) => epssn_spec::load::firmware_blob(&root, config::SPEC_FILE_NAME)
+            .unwrap_or_else(|e| panic!("{e}")),
     };
     println!("cargo:rerun-if-changed={}", blob_path.display());
     let blob = std::fs::read(&blob_path)

@@ -30,7 +30,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub recording: Option<PathBuf>,
     /// Ground-truth folder with `depth_<frame>.npy` and `mask_<frame>.npy` per reference
-    /// frame (default: `gt/` beside the bundled demo recording).
+    /// frame (default: `gt/` beside the bundled demo recording; `gt-<spec>/` for another spec).
     #[arg(long)]
     pub gt: Option<PathBuf>,
     /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
@@ -169,7 +169,13 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     let gt_dir = args.gt.clone().or_else(|| {
         args.recording
             .is_none()
-            .then(|| Path::new(DEMO_DIR).join("gt"))
+            // The demo's ground truth on the build's output grid (`gt/` for EPSSN-S).
+            .then(|| {
+                Path::new(DEMO_DIR).join(epssn_spec::load::per_spec_name(
+                    "gt",
+                    epssn::config::SPEC_FILE_NAME,
+                ))
+            })
     });
     let weights_dir = match &args.weights {
         Some(w) => w.clone(),

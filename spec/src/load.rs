@@ -140,3 +140,105 @@ pub fn load_beam_table(root: &Path, name: &str) -> Result<BeamTable, String> {
         .map_err(|e| format!("cannot read beam table {}: {e}", path.display()))?;
     parse_beam_table(name, &csv)
 }
+
+/// The spec file a build is generated from: `EPSSN_SPEC` when set (relative paths from the
+/// repository root `root`), else `<root>/weights/epssn-s.json`. Build scripts call this (after
+/// `cargo:rerun-if-env-changed=EPSSN_SPEC`), so every crate of a build agrees on the spec.
+pub fn build_spec_path(root: &Path) -> PathBuf {
+    match std::env::var_os("EPSSN_SPEC") {
+        Some(p) => root.join(p),
+        None => root.join("weights").join(DEFAULT_SPEC_FILE),
+    }
+}
+
+/// The default spec's file name in `weights/`: EPSSN-S, the Cortex-M7 configuration.
+pub const DEFAULT_SPEC_FILE: &str = "epssn-s.json";
+
+/// A file kept per configuration, in `dir`: `<name>.<ext>` for the default spec (EPSSN-S's
+/// `memory.x`, `budgets.json`), `<name>-<spec file stem>.<ext>` for any other
+/// (`memory-epssn-p.x`, `budgets-epssn-p.json`).
+pub fn per_spec_file(dir: &Path, name: &str, ext: &str, spec_file: &str) -> PathBuf {
+    dir.join(format!("{}.{ext}", per_spec_name(name, spec_file)))
+}
+
+/// A name kept per configuration: `name` for the default spec, `name-<spec file stem>` for any
+/// other (the demo's ground truth: `gt/`, `gt-epssn-p/`).
+pub fn per_spec_name(name: &str, spec_file: &str) -> String {
+    if spec_file == DEFAULT_SPEC_FILE {
+        return name.into();
+    }
+    format!("{name}-{}", spec_stem(spec_file))
+}
+
+/// A spec file's name without `.json`: `epssn-p` for `epssn-p.json`.
+pub fn spec_stem(spec_file: &str) -> &str {
+    spec_file.strip_suffix(".json").unwrap_or(spec_file)
+}
+
+/// The weight blob the firmware of a build embeds, relative to `root`: `weights/FIRMWARE_WEIGHTS`
+/// maps each spec file (its name in `weights/`) to the blob built for it, one
+/// `<spec file> <blob path>` per line (`#` starts a comment). The one reader of that file: the
+/// boards' self-test build script, the host tools and the examples all ask here.
+pub fn firmware_blob(root: &Path, spec_file: &str) -> Result<PathBuf, String> {
+    let pointer = root.join("weights/FIRMWARE_WEIGHTS");
+    let text = std::fs::read_to_string(&pointer)
+        .map_err(|e| format!("cannot read {}: {e}", pointer.display()))?;
+    firmware_blob_in(&text, spec_file)
+        .map(|rel| root.join(rel))
+        .ok_or_else(|| {
+            format!(
+                "{} names no blob for the spec {spec_file} (add a line `{spec_file} <blob path>`)",
+                pointer.display()
+            )
+        })
+}
+
+/// The blob path `text` (the contents of `weights/FIRMWARE_WEIGHTS`) gives for `spec_file`.
+pub fn firmware_blob_in<'a>(text: &'a str, spec_file: &str) -> Option<&'a str> {
+    text.lines()
+        .map(|l| l.split('#').next().unwrap_or_default())
+        .filter_map(|l| {
+            let mut words = l.split_whitespace();
+            Some((words.next()?, words.next()?))
+        })
+        .find_map(|(spec, blob)| (spec == spec_file).then_some(blob))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn firmware_pointer_lines_map_spec_files_to_blobs() {
+        let text = "# spec -> blob\nepssn-s.json weights/general/epssn-s.q8.bin\n\n  epssn-p.json   weights/paper/epssn-p.q8.bin # the paper's size\n";
+        assert_eq!(
+            firmware_blob_in(text, "epssn-s.json"),
+            Some("weights/general/epssn-s.q8.bin")
+        );
+        assert_eq!(
+            firmware_blob_in(text, "epssn-p.json"),
+            Some("weights/paper/epssn-p.q8.bin")
+        );
+        assert_eq!(firmware_blob_in(text, "other.json"), None);
+        assert_eq!(firmware_blob_in("epssn-s.json\n", "epssn-s.json"), None);
+    }
+
+    #[test]
+    fn per_spec_files_keep_the_default_names_for_epssn_s() {
+        let d = Path::new("w");
+        assert_eq!(per_spec_file(d, "budgets", "json", "epssn-s.json"), d.join("budgets.json"));
+        assert_eq!(
+            per_spec_file(d, "memory", "x", "epssn-p.json"),
+            d.join("memory-epssn-p.x")
+        );
+    }
+
+    #[test]
+    fn the_shipped_pointer_names_a_blob_for_every_bundled_spec() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        for spec in ["epssn-s.json", "epssn-p.json"] {
+            let blob = firmware_blob(&root, spec).unwrap();
+            assert!(blob.is_file(), "{}", blob.display());
+        }
+    }
+}

@@ -41,8 +41,9 @@ use fixed::types::U16F16;
 /// Most input range rows of the optimised kernel (its accumulator rows).
 pub const MAX_FAST_ROWS: usize = 128;
 /// Most words of the gathered inputs of one column position (`H` range rows of
-/// `Q · P · up4(C) / 2` words).
-pub const HEAD_COL_WORDS: usize = 1024;
+/// `Q · P · up4(C) / 2` words): 1024 for EPSSN-S (64 rows × 16), scaled with the range rows so
+/// that a longer configuration's head (EPSSN-P: 128 rows) takes the optimised kernel.
+pub const HEAD_COL_WORDS: usize = 1024 * crate::config::FEATURE_RANGE_BINS.div_ceil(64);
 /// Most words of the prepared weights (`Q` rotations × ray pairs × `kh` × two rays' words).
 pub const HEAD_W_WORDS: usize = 512;
 

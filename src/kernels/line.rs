@@ -26,8 +26,10 @@
 use super::{ConvParams, ConvShape, Skip};
 use crate::requant::{Apply, Requant};
 
-/// Words (two i16 entries each) of the line buffer.
-pub const LINE_WORDS: usize = 1024;
+/// Words (two i16 entries each) of the line buffer: 1024 for EPSSN-S (d1's lines, 72 entries ×
+/// 17 columns, are the longest at 612 words), scaled with the feature map's width so that a
+/// wider configuration's layers (EPSSN-P's d1: 72 × 33) still take the engine.
+pub const LINE_WORDS: usize = 1024 * crate::config::FEATURE_COLUMNS.div_ceil(16);
 /// Words (two i16 weights each) of the reordered weights of one call or phase.
 pub const WEIGHT_WORDS: usize = 3456;
 /// Most line entries per column (`v`, padded to a multiple of 4).

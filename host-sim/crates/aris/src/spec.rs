@@ -9,9 +9,12 @@ use epssn::spec::ModelSpec;
 
 use crate::beams;
 
-/// The spec the library was built from, relative to the repository root.
-pub const DEFAULT_SPEC: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../../weights/epssn-s.json");
+/// The spec the library was built from (`weights/epssn-s.json` unless `EPSSN_SPEC` named
+/// another at build time).
+pub fn built_spec() -> Result<ModelSpec> {
+    epssn_spec::load::parse_spec(epssn::config::SPEC_JSON.as_bytes())
+        .map_err(|e| anyhow!("the built spec {}: {e}", epssn::config::SPEC_FILE_NAME))
+}
 
 /// Parses a model spec file.
 pub fn load_spec(path: &Path) -> Result<ModelSpec> {

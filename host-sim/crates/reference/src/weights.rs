@@ -10,20 +10,17 @@ use anyhow::{anyhow, bail, Context, Result};
 
 use crate::float::FloatWeights;
 
-/// File name of the blob inside a weights folder.
-pub const BLOB_FILE: &str = "epssn-s.q8.bin";
+/// File name of the blob inside a weights folder of the build's spec (`epssn-s.q8.bin`).
+pub const BLOB_FILE: &str = epssn::config::BLOB_FILE_NAME;
 
-/// The blob the firmware embeds: `EPSSN_BLOB` if set, else the path named in
-/// `weights/FIRMWARE_WEIGHTS` (the same rule as `firmware/build.rs`).
+/// The blob the firmware embeds: `EPSSN_BLOB` if set, else the one `weights/FIRMWARE_WEIGHTS`
+/// names for the build's spec (the same rule as the boards' self-test build script).
 pub fn firmware_blob_path() -> Result<PathBuf> {
     if let Ok(p) = std::env::var("EPSSN_BLOB") {
         return Ok(PathBuf::from(p));
     }
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
-    let pointer = root.join("weights/FIRMWARE_WEIGHTS");
-    let rel = std::fs::read_to_string(&pointer)
-        .with_context(|| format!("reading {}", pointer.display()))?;
-    Ok(root.join(rel.trim()))
+    epssn_spec::load::firmware_blob(&root, epssn::config::SPEC_FILE_NAME).map_err(|e| anyhow!(e))
 }
 
 /// The folder of the blob the firmware embeds.

@@ -549,7 +549,8 @@ fn run_network(seed: u64, views: usize) {
     assert_eq!(depth, unfused);
     let k = config::END_BIN_OFFSET;
     let (base, step) = depth_grid(k);
-    let (lo, hi) = (base + k * step, base + (63 + k) * step);
+    let last = config::DEPTH_RANGE_BINS as u32 - 1;
+    let (lo, hi) = (base + k * step, base + (last + k) * step);
     assert!(depth.iter().all(|&d| d >= lo && d <= hi));
 }
 
@@ -678,11 +679,15 @@ fn soft_argmax_on_extreme_logits() {
         // All equal (any value): every ray reads the middle of the window.
         for v in [-128i8, 0, 127] {
             let d = check_soft_k(&vec![v; n], rows, bins, cols, &exp, k);
+            // The mean of the bins' positions (index 0, interior i + K, last bins − 1 + 2K) is
+            // index (bins − 1) / 2 + K on the Q16.16 grid: the window's middle, up to the grid's
+            // rounding (step16 is rounded once, so the error grows with the bin count).
+            let want = r_min16 as f64 + ((bins - 1) as f64 / 2.0 + k as f64) * step16 as f64;
+            assert!((d[0] as f64 - want).abs() <= 1.0, "K {k}: {} vs {want}", d[0]);
             let metres = d[0] as f64 / 65536.0;
-            // r_min16 and step16 are rounded once each; K steps add up to K/2 LSB.
-            let tolerance = 1e-4 + k as f64 * 0.5 / 65536.0;
+            let grid_rounding = (bins as f64 / 2.0 + k as f64 + 1.0) * 0.5 / 65536.0;
             assert!(
-                (metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() < tolerance,
+                (metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() <= grid_rounding,
                 "K {k}: {metres}"
             );
             assert!(d.iter().all(|&x| x == d[0]));

@@ -192,13 +192,25 @@ fn firmware_blob() -> Result<Vec<u8>> {
     std::fs::read(&path).with_context(|| format!("reading weight blob {}", path.display()))
 }
 
-/// Builds the firmware (cargo decides whether anything changed) and returns the ELF.
-/// Builds the firmware (release) and returns the ELF path.
+/// Builds the firmware (release; cargo decides whether anything changed) for the spec this
+/// host build was generated from, and returns the ELF path. EPSSN-S builds in
+/// `firmware/target`, any other configuration in `firmware/target/<spec stem>`, so the two
+/// never rebuild each other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
     let dir = repo_root().join("firmware");
+    let spec_file = epssn::config::SPEC_FILE_NAME;
+    let target = if spec_file == epssn_spec::load::DEFAULT_SPEC_FILE {
+        dir.join("target")
+    } else {
+        dir.join("target")
+            .join(epssn_spec::load::spec_stem(spec_file))
+    };
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--release", "--quiet"])
+        .args(["build", "--release", "--quiet", "--target-dir"])
+        .arg(&target)
         .current_dir(&dir)
+        // The firmware is built from the same spec as this host tool (specs live in weights/).
+        .env("EPSSN_SPEC", Path::new("weights").join(spec_file))
         // The host build's variables must not leak into the cross build.
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("RUSTFLAGS")
@@ -210,7 +222,7 @@ pub fn build_firmware() -> Result<PathBuf> {
     if !status.success() {
         bail!("firmware build failed ({status})");
     }
-    Ok(dir.join("target/thumbv7em-none-eabihf/release/epssn-firmware"))
+    Ok(target.join("thumbv7em-none-eabihf/release/epssn-firmware"))
 }
 
 /// Flash and static RAM of the ELF, from its section sizes.

@@ -37,9 +37,10 @@ pub struct TrainArgs {
     /// Output folder (default `weights/<scene>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Model spec.
-    #[arg(long, default_value = "weights/epssn-s.json")]
-    pub spec: PathBuf,
+    /// Model spec (default: the one this build was generated from, `weights/epssn-s.json`
+    /// unless `EPSSN_SPEC` named another; the quantiser and the library follow the build's).
+    #[arg(long)]
+    pub spec: Option<PathBuf>,
     /// Views (default: the spec's; 1 = reference as its own source).
     #[arg(long)]
     pub views: Option<usize>,
@@ -58,6 +59,12 @@ pub struct TrainArgs {
     /// Only time this many training steps (after one warm-up step) and exit without saving.
     #[arg(long)]
     pub bench_steps: Option<usize>,
+    /// Start from the weights of another trained model (its `model.safetensors`) with the same
+    /// layers: convolution weights do not depend on the image size, so a model of EPSSN-S
+    /// starts EPSSN-P (docs/PAPER.md). Fresh optimizer state and schedule; ignored on --resume
+    /// from a checkpoint.
+    #[arg(long, conflicts_with = "bench_steps")]
+    pub init_from: Option<PathBuf>,
 }
 
 /// Arguments of `host-sim eval`.
@@ -216,8 +223,11 @@ fn save_checkpoint(out: &Path, trainer: &Trainer, state: &TrainState) -> Result<
 /// Runs `host-sim train`.
 pub fn train(args: &TrainArgs) -> Result<()> {
     let started = Instant::now();
-    let spec_bytes = std::fs::read(&args.spec)
-        .with_context(|| format!("cannot read spec {}", args.spec.display()))?;
+    let spec_path = args.spec.clone().unwrap_or_else(|| {
+        PathBuf::from("weights").join(epssn::config::SPEC_FILE_NAME)
+    });
+    let spec_bytes = std::fs::read(&spec_path)
+        .with_context(|| format!("cannot read spec {}", spec_path.display()))?;
     let spec = parse_spec(&spec_bytes)?;
     let views = args.views.unwrap_or(spec.baseline.views as usize);
     ensure!((1..=3).contains(&views), "--views must be 1, 2 or 3");
@@ -305,7 +315,15 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         if args.resume {
             eprintln!("no checkpoint in {}: starting fresh", ckpt.display());
         }
-        let t = Trainer::new(&spec, args.seed, views)?;
+        let t = match &args.init_from {
+            Some(dir) => {
+                let tensors = load_safetensors(&dir.join(WEIGHTS_FILE))
+                    .with_context(|| format!("--init-from {}", dir.display()))?;
+                eprintln!("starting from the weights of {}", dir.display());
+                Trainer::from_checkpoint(&spec, &tensors, None, views)?
+            }
+            None => Trainer::new(&spec, args.seed, views)?,
+        };
         let s = TrainState {
             epoch: 0,
             batch_in_epoch: 0,
@@ -388,7 +406,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let manifest = serde_json::json!({
         "scene": args.scene,
         "spec_name": spec.name.as_str(),
-        "spec_file": args.spec.display().to_string(),
+        "spec_file": spec_path.display().to_string(),
         "spec_crc32": format!("0x{:08x}", epssn::crc32::crc32(&spec_bytes)),
         "data_dir": args.data.display().to_string(),
         "data": data_manifest,
@@ -396,6 +414,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         "val_samples": val_set.len(),
         "views": views,
         "seed": args.seed,
+        "init_from": args.init_from.as_ref().map(|p| p.display().to_string()),
         "batch": batch,
         "epochs": args.epochs,
         "steps": state.global_step,
