@@ -230,17 +230,15 @@ fn resampling_native_frames_averages_beam_groups_and_sample_groups() {
         }
     }
     // Bad shapes are errors, not panics.
-    assert!(
-        geometry::resample_to_grid(
-            &data[1..],
-            ranges,
-            &beam_rad,
-            &grid,
-            config::INPUT_RANGE_BINS,
-            &mut out
-        )
-        .is_err()
-    );
+    assert!(geometry::resample_to_grid(
+        &data[1..],
+        ranges,
+        &beam_rad,
+        &grid,
+        config::INPUT_RANGE_BINS,
+        &mut out
+    )
+    .is_err());
     let fewer_bins = config::INPUT_RANGE_BINS - 1;
     assert!(
         geometry::resample_to_grid(&data, ranges, &beam_rad, &grid, fewer_bins, &mut out).is_err()

@@ -226,7 +226,10 @@ mod tests {
     #[test]
     fn per_spec_files_keep_the_default_names_for_epssn_s() {
         let d = Path::new("w");
-        assert_eq!(per_spec_file(d, "budgets", "json", "epssn-s.json"), d.join("budgets.json"));
+        assert_eq!(
+            per_spec_file(d, "budgets", "json", "epssn-s.json"),
+            d.join("budgets.json")
+        );
         assert_eq!(
             per_spec_file(d, "memory", "x", "epssn-p.json"),
             d.join("memory-epssn-p.x")

@@ -683,7 +683,11 @@ fn soft_argmax_on_extreme_logits() {
             // index (bins − 1) / 2 + K on the Q16.16 grid: the window's middle, up to the grid's
             // rounding (step16 is rounded once, so the error grows with the bin count).
             let want = r_min16 as f64 + ((bins - 1) as f64 / 2.0 + k as f64) * step16 as f64;
-            assert!((d[0] as f64 - want).abs() <= 1.0, "K {k}: {} vs {want}", d[0]);
+            assert!(
+                (d[0] as f64 - want).abs() <= 1.0,
+                "K {k}: {} vs {want}",
+                d[0]
+            );
             let metres = d[0] as f64 / 65536.0;
             let grid_rounding = (bins as f64 / 2.0 + k as f64 + 1.0) * 0.5 / 65536.0;
             assert!(

@@ -223,9 +223,10 @@ fn save_checkpoint(out: &Path, trainer: &Trainer, state: &TrainState) -> Result<
 /// Runs `host-sim train`.
 pub fn train(args: &TrainArgs) -> Result<()> {
     let started = Instant::now();
-    let spec_path = args.spec.clone().unwrap_or_else(|| {
-        PathBuf::from("weights").join(epssn::config::SPEC_FILE_NAME)
-    });
+    let spec_path = args
+        .spec
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("weights").join(epssn::config::SPEC_FILE_NAME));
     let spec_bytes = std::fs::read(&spec_path)
         .with_context(|| format!("cannot read spec {}", spec_path.display()))?;
     let spec = parse_spec(&spec_bytes)?;
