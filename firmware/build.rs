@@ -14,7 +14,10 @@ fn main() {
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
     let root = manifest.join("..");
     let spec = build_spec_path(&root);
-    let spec_file = spec.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+    let spec_file = spec
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or_default();
     let memory = per_spec_file(&root, "memory", "x", spec_file);
     std::fs::copy(&memory, out.join("memory.x"))
         .unwrap_or_else(|e| panic!("{}: {e}", memory.display()));
