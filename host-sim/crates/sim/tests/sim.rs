@@ -378,6 +378,7 @@ fn elevation_map_puts_floor_returns_on_the_floor() {
             tilt_deg: 20.0,
         },
         view_rolls_deg: vec![0.0, 7.0],
+        view_pose_errors_deg: Vec::new(),
         objects: vec![epssn_sim::scene::Object::Plane {
             name: "floor".into(),
             point_m: [0.0; 3],
