@@ -1,41 +1,13 @@
-//! Build-time work of the firmware:
-//! - puts the repository's `memory.x` (the one memory map) on the linker search path;
-//! - embeds the weight blob named by `weights/FIRMWARE_WEIGHTS` (or `EPSSN_BLOB`) after
-//!   checking it with the library's own loader on the host: CRC, spec hash, shapes and every
-//!   accumulator bound, so a bad blob fails the build, not the vehicle;
-//! - runs the library on the host on a fixed pair of synthetic images and stores the depth map
-//!   as the golden vector of the boot self-test: the firmware on the target must reproduce the
-//!   x86 bits exactly.
+//! Build-time work of the QEMU firmware: puts the repository's `memory.x` (the MPS2-AN500
+//! memory map) on the linker search path. The weight blob and the golden vectors of the boot
+//! self-test are embedded by the shared self-test crate (`../boards/selftest/build.rs`).
 
-use std::path::{Path, PathBuf};
-
-use epssn::config;
-use epssn::model::{Model, Workspace};
-
-fn synthetic_image(seed: u32) -> Vec<u8> {
-    // An LCG speckle over a bright arc whose range varies across the columns.
-    let mut s = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
-    let (r, b) = (config::INPUT_RANGE_BINS, config::INPUT_COLUMNS);
-    let mut img = vec![0u8; r * b];
-    for k in 0..b {
-        let centre =
-            (r as f64) * (0.35 + 0.25 * ((k as f64) * 0.11 + seed as f64 * 0.3).sin().abs());
-        for i in 0..r {
-            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            let d = (i as f64 - centre) / 5.0;
-            let v = 210.0 * (-d * d).exp() + (s >> 27) as f64;
-            img[i * b + k] = v.clamp(0.0, 255.0) as u8;
-        }
-    }
-    img
-}
+use std::path::PathBuf;
 
 fn main() {
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
-    let root = manifest.join("..");
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap());
-
-    let memory = root.join("memory.x");
+    let memory = manifest.join("../memory.x");
     std::fs::copy(&memory, out.join("memory.x")).expect("copy memory.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory.display());
@@ -43,41 +15,4 @@ fn main() {
         // defmt's interned strings need its linker script.
         println!("cargo:rustc-link-arg=-Tdefmt.x");
     }
-
-    let pointer = root.join("weights/FIRMWARE_WEIGHTS");
-    println!("cargo:rerun-if-changed={}", pointer.display());
-    println!("cargo:rerun-if-env-changed=EPSSN_BLOB");
-    let blob_path = match std::env::var("EPSSN_BLOB") {
-        Ok(p) => PathBuf::from(p),
-        Err(_) => {
-            let rel = std::fs::read_to_string(&pointer).expect("read weights/FIRMWARE_WEIGHTS");
-            root.join(rel.trim())
-        }
-    };
-    println!("cargo:rerun-if-changed={}", blob_path.display());
-    let blob = std::fs::read(&blob_path)
-        .unwrap_or_else(|e| panic!("weight blob {}: {e}", blob_path.display()));
-    let model = Model::from_blob(&blob)
-        .unwrap_or_else(|e| panic!("weight blob {} refused: {e:?}", blob_path.display()));
-    std::fs::write(out.join("weights.bin"), &blob).unwrap();
-
-    let mut ws = Box::new(Workspace::new());
-    let reference = synthetic_image(1);
-    let source = synthetic_image(2);
-    let mut features = vec![0i8; 2 * config::FEATURE_LEN];
-    let mut depth = vec![fixed::types::U16F16::ZERO; config::DEPTH_LEN];
-    model
-        .depth(&[&reference, &source], &mut features, &mut ws, &mut depth)
-        .unwrap();
-    write(&out, "selftest_reference.bin", &reference);
-    write(&out, "selftest_source.bin", &source);
-    let golden: Vec<u8> = depth
-        .iter()
-        .flat_map(|d| d.to_bits().to_le_bytes())
-        .collect();
-    write(&out, "selftest_depth.bin", &golden);
-}
-
-fn write(dir: &Path, name: &str, bytes: &[u8]) {
-    std::fs::write(dir.join(name), bytes).unwrap();
 }

@@ -35,7 +35,9 @@ pub struct Server<'a> {
     pub depth: &'a mut [U16F16; config::DEPTH_LEN],
     /// Ticks of a free-running counter.
     pub now: &'a dyn Fn() -> u32,
-    /// Instructions per tick of `now`.
+    /// Instructions per tick of `now` (QEMU: 40 per CMSDK timer tick under `-icount`). A board
+    /// with a cycle counter passes 1 and its `now` counts core cycles: the figure it reports
+    /// in depth replies is then cycles (boards/stm32h743).
     pub instructions_per_tick: u32,
     /// Ticks of line silence after which a partial message is abandoned.
     pub idle_ticks: u32,

@@ -5,6 +5,8 @@
 //! map (the firmware's timer ticks × 40 under `-icount shift=0`), flash and RAM from the ELF
 //! sections plus the measured stack high-water mark. `--fuzz N` then sends N malformed
 //! messages interleaved with status requests and checks that the firmware always answers.
+//! `--serial PORT` runs the same checks against a real board (boards/stm32h743) on a serial
+//! port instead of QEMU; its figures are then core cycles, and the QEMU budgets are not applied.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
@@ -58,6 +60,14 @@ pub struct SilArgs {
     /// The budgets file (default: `weights/budgets.json`).
     #[arg(long)]
     pub budgets: Option<PathBuf>,
+    /// Talk to a real board on this serial port (e.g. `/dev/ttyACM0`, the ST-LINK's virtual
+    /// COM port) instead of booting the firmware in QEMU. Sizes come from `--firmware`
+    /// (default: the STM32H743 board's release ELF, if built); budgets are not applied.
+    #[arg(long)]
+    pub serial: Option<PathBuf>,
+    /// The serial port's baud rate (the board's `LINK_BAUD`).
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
 }
 
 /// Counts of a fuzz run.
@@ -82,6 +92,11 @@ pub struct SilReport {
     pub recording: String,
     /// The firmware ELF.
     pub firmware: String,
+    /// Where the firmware ran: "qemu" or the serial port.
+    pub device: String,
+    /// What the cost figures count: "instructions" (QEMU `-icount`) or "cycles" (a board's
+    /// cycle counter, over `--serial`).
+    pub cost_unit: String,
     /// Frames sent.
     pub frames: usize,
     /// Depth maps received.
@@ -174,7 +189,8 @@ pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
             .unwrap_or_default()
     };
     let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
-    let ram = size(".data") + size(".bss") + size(".uninit");
+    // .axisram: the STM32H743 board's buffers in AXI SRAM (absent in the QEMU build).
+    let ram = size(".data") + size(".bss") + size(".uninit") + size(".axisram");
     if flash == 0 || ram == 0 {
         bail!(
             "{}: no .text/.bss sections (not the firmware?)",
@@ -323,10 +339,15 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
     }
 }
 
-/// QEMU running the firmware, its link socket and the reply reader.
+/// The default ELF of the STM32H743 board (`boards/stm32h743`, release).
+fn board_elf() -> PathBuf {
+    repo_root().join("boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743")
+}
+
+/// QEMU running the firmware (or a board on a serial port), its link and the reply reader.
 pub(crate) struct Device {
-    qemu: Child,
-    link: UnixStream,
+    qemu: Option<Child>,
+    link: Box<dyn Write + Send>,
     replies: Receiver<Reply>,
     console: Arc<Mutex<Vec<String>>>,
     dir: PathBuf,
@@ -411,7 +432,27 @@ impl Device {
                 }
             }
         };
-        let mut reader = link.try_clone()?;
+        let reader = link.try_clone()?;
+        let mut device = Self::over(Box::new(link), Box::new(reader), timeout);
+        device.qemu = Some(qemu);
+        device.console = console;
+        device.dir = dir;
+        Ok(device)
+    }
+
+    /// A board on a serial port: no process, the port is the link.
+    fn serial(port: &Path, baud: u32, timeout: Duration) -> Result<Self> {
+        let file = crate::serial::open(port, baud)?;
+        let reader = file.try_clone()?;
+        Ok(Self::over(Box::new(file), Box::new(reader), timeout))
+    }
+
+    /// The reply reader on `reader`, messages out on `link`.
+    fn over(
+        link: Box<dyn Write + Send>,
+        mut reader: Box<dyn Read + Send>,
+        timeout: Duration,
+    ) -> Self {
         let (tx, replies) = channel();
         std::thread::spawn(move || {
             let mut decoder = Box::new(Decoder::new());
@@ -430,14 +471,14 @@ impl Device {
                 }
             }
         });
-        Ok(Self {
-            qemu,
+        Self {
+            qemu: None,
             link,
             replies,
-            console,
-            dir,
+            console: Arc::new(Mutex::new(Vec::new())),
+            dir: PathBuf::new(),
             timeout,
-        })
+        }
     }
 
     pub(crate) fn send(&mut self, bytes: &[u8]) -> Result<()> {
@@ -475,11 +516,14 @@ impl Device {
             .unwrap_or_default()
     }
 
-    /// Waits for QEMU to exit; true when it exited successfully.
+    /// Waits for QEMU to exit; true when it exited successfully (a board resets instead: true).
     fn wait_exit(&mut self) -> bool {
+        let Some(qemu) = self.qemu.as_mut() else {
+            return true;
+        };
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(30) {
-            if let Ok(Some(status)) = self.qemu.try_wait() {
+            if let Ok(Some(status)) = qemu.try_wait() {
                 return status.success();
             }
             std::thread::sleep(Duration::from_millis(20));
@@ -490,11 +534,13 @@ impl Device {
 
 impl Drop for Device {
     fn drop(&mut self) {
-        if let Ok(None) = self.qemu.try_wait() {
-            let _ = self.qemu.kill();
-            let _ = self.qemu.wait();
+        if let Some(qemu) = self.qemu.as_mut() {
+            if let Ok(None) = qemu.try_wait() {
+                let _ = qemu.kill();
+                let _ = qemu.wait();
+            }
+            let _ = std::fs::remove_dir_all(&self.dir);
         }
-        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 
@@ -720,12 +766,26 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     if frames.is_empty() {
         bail!("{}: no frames", recording.display());
     }
-    let elf = match &args.firmware {
-        Some(p) => p.clone(),
-        None => build_firmware()?,
+    let timeout = Duration::from_secs(args.timeout);
+    let (elf, sizes, mut device) = match &args.serial {
+        None => {
+            let elf = match &args.firmware {
+                Some(p) => p.clone(),
+                None => build_firmware()?,
+            };
+            let sizes = elf_sizes(&elf)?;
+            let device = Device::boot(&elf, timeout)?;
+            (elf, sizes, device)
+        }
+        Some(port) => {
+            // The board runs whatever was flashed: sizes from the ELF named (or the board's
+            // release build), when there is one.
+            let elf = args.firmware.clone().unwrap_or_else(board_elf);
+            let sizes = elf_sizes(&elf).unwrap_or((0, 0));
+            (elf, sizes, Device::serial(port, args.baud, timeout)?)
+        }
     };
-    let (flash, static_ram) = elf_sizes(&elf)?;
-    let mut device = Device::boot(&elf, Duration::from_secs(args.timeout))?;
+    let (flash, static_ram) = sizes;
 
     let mut seq = 0u32;
     let Streamed {
@@ -788,13 +848,28 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
             .unwrap_or_else(crate::budgets::default_path),
     )?;
     let ram = static_ram + u64::from(status.stack_high_water);
-    let budget_violations = budgets.violations(&instructions, ram, flash);
+    // The budgets are the QEMU build's (instructions, its flash and RAM): not a board's cycles.
+    let budget_violations = if args.serial.is_some() {
+        Vec::new()
+    } else {
+        budgets.violations(&instructions, ram, flash)
+    };
     let fuzz_alive = fuzz_report
         .as_ref()
         .is_none_or(|f| f.status_replies == f.status_requests && f.unanswered == 0);
     Ok(SilReport {
         recording: recording.display().to_string(),
         firmware: elf.display().to_string(),
+        device: args
+            .serial
+            .as_ref()
+            .map_or_else(|| "qemu".to_string(), |p| p.display().to_string()),
+        cost_unit: if args.serial.is_some() {
+            "cycles"
+        } else {
+            "instructions"
+        }
+        .to_string(),
         frames: frames.len(),
         depth_maps,
         expected_depth_maps,
@@ -831,7 +906,7 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
         writeln!(out, "{}", serde_json::to_string_pretty(&r)?)?;
     } else {
         writeln!(out, "recording: {}", r.recording)?;
-        writeln!(out, "firmware: {}", r.firmware)?;
+        writeln!(out, "firmware: {} (on {})", r.firmware, r.device)?;
         writeln!(
             out,
             "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
@@ -840,8 +915,8 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
         writeln!(out, "pairs (reference, sources): {:?}", r.pairs)?;
         writeln!(
             out,
-            "instructions per depth map (features of the new frame + depth map): {} (each: {:?})",
-            r.instructions_per_depth_map, r.instructions
+            "{} per depth map (features of the new frame + depth map): {} (each: {:?})",
+            r.cost_unit, r.instructions_per_depth_map, r.instructions
         )?;
         writeln!(
             out,

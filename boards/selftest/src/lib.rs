@@ -1,0 +1,247 @@
+//! The boot self-test every epssn board runs (the QEMU `mps2-an500` firmware in `firmware/`,
+//! the STM32H743 module in `boards/stm32h743/`), board-independent: the board hands in a log
+//! sink, its clock and its busy LED.
+//!
+//! It checks, on the target, what the host already checked at build time (`build.rs`):
+//! - the warp tables in flash equal a recomputation from the same geometry code;
+//! - the weight blob in flash passes the library's loader (CRC, spec hash, shapes, bounds);
+//! - a fixed pair of images, run through the serving path (feature cache, pairing by roll),
+//!   gives exactly the depth map the library computed on x86 (the golden vector);
+//!
+//! and reports the cost of each layer in the board's clock unit (instructions under QEMU
+//! `-icount`, core cycles on silicon).
+
+#![no_std]
+#![forbid(unsafe_code)]
+
+use core::fmt::Arguments;
+
+use embedded_hal::digital::OutputPin;
+use epssn::config;
+use epssn::geometry;
+use epssn::model::{Model, Workspace};
+use epssn::pairing::FeatureCache;
+use fixed::types::U16F16;
+
+/// The weight blob the firmware serves with, checked on the host at build time.
+pub static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));
+static SELFTEST_REFERENCE: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/selftest_reference.bin"));
+static SELFTEST_SOURCE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_source.bin"));
+static SELFTEST_DEPTH: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_depth.bin"));
+
+/// Where the self-test writes its report, one line per call.
+pub type Log<'a> = &'a mut dyn FnMut(Arguments<'_>);
+
+/// The board's free-running counter and what one tick of it is worth.
+pub struct Clock<'a> {
+    /// Ticks of a free-running counter (wrapping).
+    pub now: &'a dyn Fn() -> u32,
+    /// Units (below) per tick.
+    pub units_per_tick: u32,
+    /// What the figures count: "instructions" (QEMU `-icount`), "cycles" (DWT CYCCNT).
+    pub unit: &'static str,
+}
+
+impl Clock<'_> {
+    fn now(&self) -> u32 {
+        (self.now)()
+    }
+
+    fn units(&self, ticks: u32) -> u32 {
+        ticks.saturating_mul(self.units_per_tick)
+    }
+}
+
+/// The banner line: spec name and sizes.
+pub fn banner(log: Log<'_>) {
+    log(format_args!(
+        "epssn firmware: {} ({}x{} input, {} planes, {}x{} depth)",
+        config::SPEC_NAME,
+        config::INPUT_RANGE_BINS,
+        config::INPUT_COLUMNS,
+        config::PLANES,
+        config::DEPTH_ROWS,
+        config::DEPTH_COLUMNS
+    ));
+}
+
+/// Recomputes the warp table of view `k` on the target and counts differing entries.
+// Not inlined (nor the self-test below): their stack frames then only exist while they run,
+// instead of adding to `main`'s frame under every later inference.
+#[inline(never)]
+fn warp_table_mismatches(k: usize) -> usize {
+    let mut table = [geometry::WarpEntry::default(); config::PLANES * config::FEATURE_COLUMNS];
+    let transform = geometry::RigidTransform::rolled_about_axis(
+        config::ROLL_STEP_DEG * k as f64,
+        config::LEVER_ARM_M,
+    );
+    if geometry::warp_table_pure_roll(
+        &transform,
+        &config::FEATURE_COLUMN_AZIMUTH_RAD,
+        &config::PLANE_ELEVATION_RAD,
+        config::HALF_ELEVATION_RAD,
+        config::WARP_FRACTION_BITS,
+        &mut table,
+    )
+    .is_err()
+    {
+        return table.len();
+    }
+    table
+        .iter()
+        .zip(config::WARP_TABLES[k - 1].iter())
+        .filter(|(a, b)| a != b)
+        .count()
+}
+
+/// Runs the golden pair through the serving path (feature cache, pairing by roll) and logs
+/// per-layer costs; true when bit-exact.
+#[inline(never)]
+fn golden_self_test(
+    log: Log<'_>,
+    model: &Model<'_>,
+    clock: &Clock<'_>,
+    led: &mut impl OutputPin,
+    ws: &mut Workspace,
+    cache: &mut FeatureCache,
+    depth: &mut [U16F16; config::DEPTH_LEN],
+) -> bool {
+    let unit = clock.unit;
+    let _ = led.set_high();
+    let start = clock.now();
+    let mut last = start;
+    let mut ok = true;
+    let mut newest = None;
+    for (v, image) in [SELFTEST_REFERENCE, SELFTEST_SOURCE].iter().enumerate() {
+        let roll = (config::ROLL_STEP_DEG * v as f64) as f32;
+        let r = cache.insert(v as u32, roll, |f| {
+            model.features_probed(image, ws, f, |name, _| {
+                let now = clock.now();
+                log(format_args!(
+                    "layer {} (view {}): {} {}",
+                    name,
+                    v,
+                    clock.units(now - last),
+                    unit
+                ));
+                last = clock.now();
+            })
+        });
+        match r {
+            Ok(f) => newest = Some(f),
+            Err(e) => {
+                log(format_args!("features failed: {:?}", e));
+                ok = false;
+            }
+        }
+    }
+    let features_done = clock.now();
+    let set = newest.and_then(|n| cache.find(&n, 2));
+    let pair = set.as_ref().and_then(|s| {
+        let r = cache.features(s.reference()?)?;
+        let src = cache.features(s.sources().first()?)?;
+        Some((s.reference()?.seq, r, src))
+    });
+    let Some((reference_seq, reference, source)) = pair else {
+        log(format_args!(
+            "self-test pairing: no pair for rolls 0 and step"
+        ));
+        return false;
+    };
+    if reference_seq != 0 {
+        log(format_args!(
+            "self-test pairing: reference is frame {}",
+            reference_seq
+        ));
+        ok = false;
+    }
+    let r = model.depth_from_features_probed(reference, &[source], ws, depth, |name, _| {
+        let now = clock.now();
+        log(format_args!(
+            "layer {}: {} {}",
+            name,
+            clock.units(now - last),
+            unit
+        ));
+        last = clock.now();
+    });
+    let end = clock.now();
+    let _ = led.set_low();
+    if let Err(e) = r {
+        log(format_args!("depth failed: {:?}", e));
+        ok = false;
+    }
+    // The last streamed stage: each u0 output plane (its cost-volume skip plane recomputed)
+    // straight into the fused head and soft-argmax.
+    log(format_args!(
+        "layer cost+u0+head+soft-argmax: {} {}",
+        clock.units(end - last),
+        unit
+    ));
+    let mismatches = depth
+        .iter()
+        .zip(SELFTEST_DEPTH.chunks_exact(4))
+        .filter(|(d, g)| d.to_bits() != u32::from_le_bytes([g[0], g[1], g[2], g[3]]))
+        .count();
+    log(format_args!(
+        "self-test depth map: {} of {} values differ from the x86 library",
+        mismatches,
+        config::DEPTH_LEN
+    ));
+    log(format_args!(
+        "{}: features per view {}, depth from features {}, full pair {}",
+        unit,
+        clock.units(features_done - start) / 2,
+        clock.units(end - features_done),
+        clock.units(end - start)
+    ));
+    cache.clear();
+    ok && mismatches == 0
+}
+
+/// The whole boot self-test after the banner: warp tables, the blob (already parsed by the
+/// caller into `model`, which the board keeps for serving), the golden depth map. Returns the
+/// number of failed checks (0: pass). Leaves the cache empty.
+#[allow(clippy::too_many_arguments)]
+pub fn run<E: core::fmt::Debug>(
+    log: Log<'_>,
+    model: &Result<Model<'_>, E>,
+    clock: &Clock<'_>,
+    led: &mut impl OutputPin,
+    ws: &mut Workspace,
+    cache: &mut FeatureCache,
+    depth: &mut [U16F16; config::DEPTH_LEN],
+) -> u32 {
+    let mut failures = 0;
+    for k in 1..config::MAX_VIEWS {
+        let bad = warp_table_mismatches(k);
+        let visible = config::WARP_TABLES[k - 1]
+            .iter()
+            .filter(|e| e.visible)
+            .count();
+        log(format_args!(
+            "self-test warp table view {}: {} visible entries, {} mismatches",
+            k, visible, bad
+        ));
+        if bad != 0 || visible == 0 {
+            failures += 1;
+        }
+    }
+    match model {
+        Ok(model) => {
+            log(format_args!(
+                "weights: {} bytes, blob verified",
+                WEIGHTS.len()
+            ));
+            if !golden_self_test(log, model, clock, led, ws, cache, depth) {
+                failures += 1;
+            }
+        }
+        Err(e) => {
+            log(format_args!("weights refused: {:?}", e));
+            failures += 1;
+        }
+    }
+    failures
+}

@@ -1,0 +1,167 @@
+//! The STM32H743 board: clocks, caches, cycle counter, busy LED, link UART, stack paint.
+//! The only file that knows the part and the pinout (Nucleo-H743ZI: USART3 on PD8/PD9 is the
+//! ST-LINK's virtual COM port, LD1 on PB0); another module changes the pins here.
+
+use core::mem::MaybeUninit;
+use core::ptr::{read_volatile, write_volatile};
+
+use cortex_m::peripheral::DWT;
+use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::usart::{self, BufferedUart};
+use embassy_stm32::{bind_interrupts, peripherals};
+
+use crate::uart::Link;
+
+/// Core clock: PLL1 P.
+pub const CPU_HZ: u32 = 480_000_000;
+/// The link's bit rate, 8N1. The ST-LINK/V3 bridge of the Nucleo-H743ZI2 takes it; the
+/// STLINK-V2-1 of the older Nucleo-H743ZI too (it tops out near 2 Mbit/s). A 16 KiB frame takes
+/// about 0.18 s at this rate, a depth reply 0.09 s.
+pub const LINK_BAUD: u32 = 921_600;
+/// The UART rings: RX holds a whole frame message, so no byte is lost while the core
+/// computes or answers; TX holds a status or error reply whole.
+const RX_RING: usize = 6 + 192 + 16_384 + 4;
+const TX_RING: usize = 512;
+
+bind_interrupts!(struct Irqs {
+    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
+});
+
+#[link_section = ".axisram.uart_rx"]
+static mut RX_BUF: MaybeUninit<[u8; RX_RING]> = MaybeUninit::uninit();
+#[link_section = ".axisram.uart_tx"]
+static mut TX_BUF: MaybeUninit<[u8; TX_RING]> = MaybeUninit::uninit();
+
+/// What `main` uses of the board.
+pub struct Board {
+    /// LD1 (green, PB0), lit while computing a depth map.
+    pub busy_led: Output<'static>,
+    /// The vehicle's serial line.
+    pub link: Link<'static>,
+}
+
+/// The clock tree, from the 64 MHz HSI (no dependence on the module's crystal or the ST-LINK's
+/// MCO): PLL1 M = 4 (16 MHz reference), N = 60 (VCO 960 MHz, wide range), P = 2 → SYSCLK
+/// 480 MHz; AHB /2 = 240 MHz (AXI, flash), APB1–4 /2 = 120 MHz (USART3's kernel clock).
+/// 480 MHz needs voltage scale 0 (VOS1 then the SYSCFG overdrive, which embassy sets), the
+/// LDO supply (the Nucleo's default) and silicon revision V; revision Y parts stop at 400 MHz
+/// (N = 50) and VOS0 limits the junction to 105 °C. Flash wait states follow from the AXI clock
+/// (embassy: 2 WS + WRHIGHFREQ 2 at 240 MHz).
+fn rcc_config() -> embassy_stm32::Config {
+    use embassy_stm32::rcc::*;
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.hsi = Some(HSIPrescaler::DIV1);
+    config.rcc.csi = true;
+    config.rcc.pll1 = Some(Pll {
+        source: PllSource::HSI,
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL60,
+        fracn: None,
+        divp: Some(PllDiv::DIV2),
+        divq: None,
+        divr: None,
+    });
+    config.rcc.sys = Sysclk::PLL1_P;
+    config.rcc.ahb_pre = AHBPrescaler::DIV2;
+    config.rcc.apb1_pre = APBPrescaler::DIV2;
+    config.rcc.apb2_pre = APBPrescaler::DIV2;
+    config.rcc.apb3_pre = APBPrescaler::DIV2;
+    config.rcc.apb4_pre = APBPrescaler::DIV2;
+    config.rcc.voltage_scale = VoltageScale::Scale0;
+    // The H743's supply (RM0433 PWR) is set to the LDO by embassy's init; no option here.
+    config
+}
+
+/// Clocks, caches, the cycle counter, the LED and the link UART.
+pub fn init() -> Board {
+    let p = embassy_stm32::init(rcc_config());
+    let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken once");
+    // Caches for code and constants in flash (weights, warp tables) and the AXI SRAM buffers.
+    // Nothing here uses DMA, so the D-cache needs no maintenance; DTCM is never cached.
+    cp.SCB.enable_icache();
+    cp.SCB.enable_dcache(&mut cp.CPUID);
+    // DWT CYCCNT: one count per core cycle. The Cortex-M7 DWT has a software lock that some
+    // STM32 parts leave set after a power cycle without a debugger: unlock it first.
+    cp.DCB.enable_trace();
+    DWT::unlock();
+    cp.DWT.set_cycle_count(0);
+    cp.DWT.enable_cycle_counter();
+
+    let busy_led = Output::new(p.PB0, Level::Low, Speed::Low);
+    let mut config = usart::Config::default();
+    config.baudrate = LINK_BAUD;
+    // SAFETY: `init` runs once (the core peripherals' `take` above would panic otherwise);
+    // these are the only references to the ring buffers, handed to the driver for good.
+    // .axisram is NOLOAD, so each buffer is written before a reference to it exists.
+    let (tx_buf, rx_buf) = unsafe {
+        (
+            (*core::ptr::addr_of_mut!(TX_BUF)).write([0; TX_RING]),
+            (*core::ptr::addr_of_mut!(RX_BUF)).write([0; RX_RING]),
+        )
+    };
+    let uart = BufferedUart::new(p.USART3, p.PD9, p.PD8, tx_buf, rx_buf, Irqs, config)
+        .expect("USART3 at the link's baud rate");
+    Board {
+        busy_led,
+        link: Link::new(uart),
+    }
+}
+
+/// Core cycles since boot (DWT CYCCNT, wraps every 8.9 s at 480 MHz; every user subtracts
+/// with wrapping).
+pub fn cycles() -> u32 {
+    DWT::cycle_count()
+}
+
+extern "C" {
+    /// Initial stack pointer (top of the stack), from cortex-m-rt's link.x.
+    static _stack_start: u32;
+    /// End of the static RAM sections; the stack's lower limit without flip-link.
+    static _stack_end: u32;
+}
+
+/// Start of DTCM, the RAM region of memory.x (flip-link puts the stack there).
+const RAM_ORIGIN: usize = 0x2000_0000;
+
+/// The stack region `[bottom, top)`, as in the QEMU firmware's board.
+fn stack_region() -> (usize, usize) {
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let end = core::ptr::addr_of!(_stack_end) as usize;
+    let bottom = if end < top { end } else { RAM_ORIGIN };
+    ((bottom + 3) & !3, top & !3)
+}
+
+const PAINT: u32 = 0xDEAD_C0DE;
+
+/// Paints the unused stack below the current stack pointer, for [`stack_high_water`].
+#[inline(never)]
+pub fn paint_stack() {
+    let (bottom, _) = stack_region();
+    let sp = cortex_m::register::msp::read() as usize & !3;
+    let end = sp.saturating_sub(64);
+    let mut addr = bottom;
+    while addr < end {
+        // SAFETY: [bottom, sp − 64) is stack memory below the live frames: nothing uses it
+        // yet (the UART interrupt runs on the same stack, but only above the current frame
+        // while it nests); the addresses are word-aligned DTCM.
+        unsafe { write_volatile(addr as *mut u32, PAINT) };
+        addr += 4;
+    }
+}
+
+/// Bytes of stack ever used since [`paint_stack`].
+pub fn stack_high_water() -> u32 {
+    let (bottom, top) = stack_region();
+    let mut addr = bottom;
+    // SAFETY: reads of word-aligned stack DTCM below the live frames or within them.
+    while addr < top && unsafe { read_volatile(addr as *const u32) } == PAINT {
+        addr += 4;
+    }
+    (top - addr) as u32
+}
+
+/// Bytes of the stack region.
+pub fn stack_size() -> u32 {
+    let (bottom, top) = stack_region();
+    (top - bottom) as u32
+}

@@ -1,0 +1,122 @@
+//! epssn co-processor firmware for an STM32H743/H753 module (pinout of the Nucleo-H743ZI).
+//!
+//! Board code only: clocks, caches, the link UART, the busy LED, the DWT cycle counter, the
+//! memory map (`memory.x`: statics and stack in DTCM, the link buffers in AXI SRAM). The boot
+//! self-test is the QEMU firmware's (`epssn-selftest`), the link server the library's
+//! (`epssn::server`). Logs go out as defmt over RTT (`probe-rs run`).
+//!
+//! Boot: clocks at 480 MHz, I- and D-cache on, cycle counter on, stack painted, self-test
+//! (warp tables, blob, golden depth map from the x86 library reproduced bit for bit, cycles
+//! per layer). On a pass it serves the link (docs/LINK.md) on USART3 until a `shutdown`
+//! message, then resets (the next session starts with fresh sequence numbers and an empty
+//! feature cache). On a failure it does not serve: the busy LED stays lit and the log says why.
+
+#![no_std]
+#![no_main]
+
+mod board;
+mod uart;
+
+use core::mem::MaybeUninit;
+
+use cortex_m_rt::entry;
+use defmt_rtt as _;
+use epssn::config;
+use epssn::link::Decoder;
+use epssn::model::{Model, Workspace};
+use epssn::pairing::FeatureCache;
+use fixed::types::U16F16;
+use panic_probe as _;
+
+/// Scratch of one inference, in DTCM .bss (const-initialised: never built on the stack).
+static mut WORKSPACE: Workspace = Workspace::new();
+/// Cached features of recent frames, for pairing by roll (DTCM: read by every cost plane).
+static mut CACHE: FeatureCache = FeatureCache::new();
+/// The depth map (DTCM).
+static mut DEPTH: [U16F16; config::DEPTH_LEN] = [U16F16::ZERO; config::DEPTH_LEN];
+/// The link decoder's buffer (one whole message): AXI SRAM, written once per received byte.
+#[link_section = ".axisram.decoder"]
+static mut DECODER: MaybeUninit<Decoder> = MaybeUninit::uninit();
+
+/// 100 ms of line silence abandons a partial message (docs/LINK.md, `Truncated`).
+const IDLE_CYCLES: u32 = board::CPU_HZ / 10;
+
+fn log(args: core::fmt::Arguments<'_>) {
+    defmt::info!("{}", defmt::Display2Format(&args));
+}
+
+#[entry]
+fn main() -> ! {
+    let mut board = board::init();
+    let mut log = log;
+    epssn_selftest::banner(&mut log);
+    defmt::info!(
+        "board: STM32H743, {=u32} Hz core, I/D-cache on, link on USART3 at {=u32} baud",
+        board::CPU_HZ,
+        board::LINK_BAUD
+    );
+    // SAFETY: `main` runs once and never returns; these are the only references to the
+    // statics, taken before anything else can reach them (no interrupt handler uses them).
+    let (ws, cache, depth, decoder) = unsafe {
+        (
+            &mut *core::ptr::addr_of_mut!(WORKSPACE),
+            &mut *core::ptr::addr_of_mut!(CACHE),
+            &mut *core::ptr::addr_of_mut!(DEPTH),
+            // .axisram is NOLOAD: nothing initialised it; write the decoder in place.
+            (*core::ptr::addr_of_mut!(DECODER)).write(Decoder::new()),
+        )
+    };
+    board::paint_stack();
+    let model = Model::from_blob(epssn_selftest::WEIGHTS);
+    let now = board::cycles;
+    let clock = epssn_selftest::Clock {
+        now: &now,
+        units_per_tick: 1,
+        unit: "cycles",
+    };
+    let failures = epssn_selftest::run(
+        &mut log,
+        &model,
+        &clock,
+        &mut board.busy_led,
+        ws,
+        cache,
+        depth,
+    );
+    defmt::info!(
+        "stack high-water mark: {=u32} of {=u32} bytes",
+        board::stack_high_water(),
+        board::stack_size()
+    );
+    let model = match (failures, model) {
+        (0, Ok(model)) => model,
+        _ => {
+            defmt::error!("self-test: FAIL ({=u32} checks); not serving", failures);
+            board.busy_led.set_high();
+            loop {
+                cortex_m::asm::wfi();
+            }
+        }
+    };
+    defmt::info!("self-test: PASS");
+    defmt::info!("serving the link on USART3");
+    let high_water = board::stack_high_water;
+    let mut server = epssn::server::Server::new(
+        &model,
+        ws,
+        cache,
+        depth,
+        &now,
+        // `now` counts core cycles: the `instr` field of depth replies carries cycles here.
+        1,
+        IDLE_CYCLES,
+        &high_water,
+    );
+    let r = server.serve(&mut board.link, &mut board.busy_led, decoder);
+    defmt::info!(
+        "link shut down ({=u32} line errors): {}; resetting",
+        board.link.line_errors,
+        defmt::Debug2Format(&r)
+    );
+    cortex_m::peripheral::SCB::sys_reset()
+}
