@@ -6,7 +6,8 @@ use crate::config;
 use crate::crc32::Crc32;
 
 use super::header::{ErrorCode, Header};
-use super::message::{DepthData, Message, Status};
+use super::message::{pair_of, DepthData, Message, Status};
+use crate::attitude::Attitude;
 use super::{
     kind, CRC_LEN, DEPTH_PAYLOAD_LEN, FRAME_PAYLOAD_LEN, MAX_HEADER_LEN, MAX_MESSAGE_LEN,
     MAX_PAYLOAD_LEN, PREAMBLE_LEN, SYNC,
@@ -144,6 +145,8 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
     match h.t {
         kind::FRAME => {
             need(h.roll.is_some_and(f32::is_finite), "roll")?;
+            // Optional (an older host sends none), but when present a unit quaternion.
+            need(h.q.is_none_or(|q| Attitude::from_array(q).is_some()), "q")?;
             let (r, b) = match (h.r, h.b) {
                 (Some(r), Some(b)) => (r, b),
                 _ => return Err(DecodeError::BadField { field: "r/b" }),
@@ -157,6 +160,7 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.reference.is_some(), "ref")?;
             need(h.instr.is_some(), "instr")?;
             need(h.src.as_ref().is_some_and(|s| !s.is_empty()), "src")?;
+            pair_of(h).map_err(|field| DecodeError::BadField { field })?;
             expect(DEPTH_PAYLOAD_LEN)
         }
         kind::STATUS => {
@@ -164,6 +168,7 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.depths.is_some(), "depths")?;
             need(h.errors.is_some(), "errors")?;
             need(h.stack.is_some(), "stack")?;
+            pair_of(h).map_err(|field| DecodeError::BadField { field })?;
             expect(0)
         }
         kind::ERROR => {
@@ -189,6 +194,8 @@ fn status_of(h: &Header<'_>) -> Status {
         errors: h.errors.unwrap_or(0),
         stack_high_water: h.stack.unwrap_or(0),
         cached: h.cached.unwrap_or(0),
+        // Checked by check_header.
+        pair: pair_of(h).ok().flatten(),
     }
 }
 
@@ -199,10 +206,12 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
         kind::FRAME => Message::Frame {
             seq,
             roll_deg: h.roll.unwrap_or(0.0),
+            attitude: h.q.and_then(Attitude::from_array),
             image: payload,
         },
         kind::DEPTH => Message::Depth {
             seq,
+            pair: pair_of(&h).ok().flatten(),
             reference: h.reference.unwrap_or(0),
             sources: h.src.unwrap_or_default(),
             instructions: h.instr.unwrap_or(0),

@@ -15,6 +15,9 @@ pub struct Header<'a> {
     /// Frame: roll of the sonar, degrees.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub roll: Option<f32>,
+    /// Frame: the sonar's attitude `[w, x, y, z]` (docs/POSE.md); absent = roll-only pairing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q: Option<[f32; 4]>,
     /// Frame: range bins of the polar image.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub r: Option<u32>,
@@ -48,6 +51,21 @@ pub struct Header<'a> {
     /// Status: feature maps cached for pairing.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cached: Option<u32>,
+    /// Status, depth: `seq` of the reference of the last candidate pair checked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pref: Option<u32>,
+    /// Status, depth: `seq` of its source the figures are of.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psrc: Option<u32>,
+    /// Status, depth: its relative roll, degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub proll: Option<f32>,
+    /// Status, depth: its residual tilt, degrees (absent without attitude).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pres: Option<f32>,
+    /// Status, depth: the verdict, [`Verdict::reason`](crate::attitude::Verdict::reason).
+    #[serde(default, borrow, skip_serializing_if = "Option::is_none")]
+    pub why: Option<&'a str>,
     /// Error: [`ErrorCode`] number.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub code: Option<u16>,

@@ -172,10 +172,25 @@ pub struct SimulateArgs {
     /// rendered so, and written into the view's frame header and `scene.json` (docs/POSE.md).
     #[arg(long, default_value_t = 0.0)]
     pub pose_jitter_deg: f64,
+    /// Which axes the pose error turns: both (a random direction), or only pitch or only yaw
+    /// (the sign random), to tell their effects apart.
+    #[arg(long, value_enum, default_value_t = JitterAxes::Both)]
+    pub pose_jitter_axes: JitterAxes,
 }
 
-/// Adds `jitter_deg` of pose error to every source view of `scene` (none when 0).
-pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64) {
+/// Axes of `--pose-jitter-deg`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum JitterAxes {
+    /// Pitch and yaw, direction uniform.
+    Both,
+    /// Pitch only.
+    Pitch,
+    /// Yaw only.
+    Yaw,
+}
+
+/// Adds `jitter_deg` of pose error about `axes` to every source view of `scene` (none when 0).
+pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
     if jitter_deg == 0.0 {
         return;
     }
@@ -187,7 +202,14 @@ pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64) {
     ));
     scene.view_pose_errors_deg = (0..scene.view_rolls_deg.len())
         .map(|k| {
-            let phi = std::f64::consts::TAU * rng.random::<f64>();
+            let mut phi = std::f64::consts::TAU * rng.random::<f64>();
+            // One axis: the same draw picks the sign.
+            let half = if phi.cos() >= 0.0 { 0.0 } else { std::f64::consts::PI };
+            match axes {
+                JitterAxes::Both => {}
+                JitterAxes::Pitch => phi = half,
+                JitterAxes::Yaw => phi = half + std::f64::consts::FRAC_PI_2,
+            }
             if k == 0 {
                 [0.0, 0.0]
             } else {
@@ -237,7 +259,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         .into_par_iter()
         .try_for_each(|i| -> Result<()> {
             let mut scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
-            jitter_pose(&mut scene, args.pose_jitter_deg);
+            jitter_pose(&mut scene, args.pose_jitter_deg, args.pose_jitter_axes);
             let data = simulate_scene(&scene, &params)?;
             write_sample(
                 &sample_dir(&args.out, args.split, i),
