@@ -88,19 +88,20 @@ impl Attitude {
         Self::from_array(q.to_array())
     }
 
-    /// From `[w, x, y, z]` as the link carries it: normalised; `None` when a component is not
-    /// finite or the norm is not 1 within 2 % (a corrupt value).
+    /// From `[w, x, y, z]` as the link carries it; `None` when a component is not finite or
+    /// the norm is not 1 within 2 % (a corrupt value). Kept as sent, not normalised: the
+    /// decomposition of [`Relative::of`] does not depend on the scale.
     pub fn from_array(q: [f32; 4]) -> Option<Self> {
         if !q.iter().all(|c| c.is_finite()) {
             return None;
         }
-        let [w, x, y, z] = q;
-        let norm = libm::sqrt(q.iter().map(|&c| f64::from(c) * f64::from(c)).sum::<f64>());
-        if !NORM_RANGE.contains(&(norm as f32)) {
+        let norm2: f64 = q.iter().map(|&c| f64::from(c) * f64::from(c)).sum();
+        let (lo, hi) = (NORM_RANGE.start(), NORM_RANGE.end());
+        if !(f64::from(lo * lo)..=f64::from(hi * hi)).contains(&norm2) {
             return None;
         }
-        let k = (1.0 / norm) as f32;
-        Some(Self(Quaternion::new(w * k, x * k, y * k, z * k)))
+        let [w, x, y, z] = q;
+        Some(Self(Quaternion::new(w, x, y, z)))
     }
 
     /// `[w, x, y, z]`.
@@ -115,8 +116,9 @@ impl Attitude {
 
     /// The rotation from this (reference) attitude to `source`'s, decomposed.
     pub fn relative(&self, source: &Attitude) -> Relative {
-        // The conjugate is the inverse of a unit quaternion; micromath's `inv` divides by an
-        // approximate norm (and asserts it is not zero), which a gate should not.
+        // The conjugate is the inverse up to the scale, which the decomposition ignores;
+        // micromath's `inv` divides by an approximate norm (and asserts it is not zero), which
+        // a gate should not.
         Relative::of(self.0.conj() * source.0)
     }
 }
@@ -182,7 +184,8 @@ impl Verdict {
 }
 
 impl Relative {
-    /// Decomposes `q` (any non-zero quaternion; a zero one reads as a 180° residual).
+    /// Decomposes `q` (any non-zero quaternion, of any scale; a zero one reads as NaN, which
+    /// the gate refuses).
     pub fn of(q: Quaternion) -> Self {
         let [w, x, y, z] = q.to_array().map(f64::from);
         // q and −q are the same rotation: take w ≥ 0 so the twist lies in [−180°, 180°].
@@ -190,11 +193,17 @@ impl Relative {
         // Twist = (w, x, 0, 0) normalised, angle 2·atan2(x, w); the swing's cosine of half its
         // angle is |(w, x)|, so its angle is 2·atan2(|(y, z)|, |(w, x)|): well conditioned at
         // the small angles the gate looks at, unlike acos.
-        let mut roll = 2.0 * libm::atan2(x, w);
+        // `atan` of the ratios rather than `atan2`: with w ≥ 0 they agree, and the firmware
+        // links `atan` already (flash is tight). x/0 is ±∞, whose atan is ±90°.
+        let mut roll = if w == 0.0 && x == 0.0 {
+            0.0
+        } else {
+            2.0 * libm::atan(x / w)
+        };
         if roll <= -core::f64::consts::PI {
             roll += 2.0 * core::f64::consts::PI;
         }
-        let residual = 2.0 * libm::atan2(libm::sqrt(y * y + z * z), libm::sqrt(w * w + x * x));
+        let residual = 2.0 * libm::atan(libm::sqrt((y * y + z * z) / (w * w + x * x)));
         Self {
             roll_deg: roll.to_degrees() as f32,
             residual_deg: residual.to_degrees() as f32,
@@ -350,7 +359,11 @@ mod tests {
             // The twist is undefined when the forward axis turns over.
             if residual < 170.0 {
                 let d = (f64::from(rel.roll_deg) - roll + 540.0).rem_euclid(360.0) - 180.0;
-                assert!(d.abs() < tol * 10.0, "case {case}: roll {} vs {roll}", rel.roll_deg);
+                assert!(
+                    d.abs() < tol * 10.0,
+                    "case {case}: roll {} vs {roll}",
+                    rel.roll_deg
+                );
             }
         }
     }
@@ -400,15 +413,27 @@ mod tests {
     #[test]
     fn link_values_are_checked() {
         assert!(Attitude::from_array([1.0, 0.0, 0.0, 0.0]).is_some());
+        // Within 2 % of unit: kept as sent, and the decomposition ignores the scale.
         let q = Attitude::from_array([1.01, 0.0, 0.0, 0.0]).unwrap();
-        assert!((q.to_array()[0] - 1.0).abs() < 1e-7);
+        assert_eq!(q.to_array(), [1.01, 0.0, 0.0, 0.0]);
+        let half = 3.5f32.to_radians();
+        let r = q.relative(
+            &Attitude::from_array([0.99 * half.cos(), 0.99 * half.sin(), 0.0, 0.0]).unwrap(),
+        );
+        assert!((r.roll_deg - 7.0).abs() < 1e-4 && r.residual_deg.abs() < 1e-4);
         assert_eq!(Attitude::from_array([0.0; 4]), None);
         assert_eq!(Attitude::from_array([1.1, 0.0, 0.0, 0.0]), None);
         assert_eq!(Attitude::from_array([f32::NAN, 0.0, 0.0, 0.0]), None);
         assert_eq!(Attitude::from_array([f32::INFINITY, 0.0, 0.0, 0.0]), None);
-        assert_eq!(Attitude::from_header_deg(f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0), None);
-        // A zero quaternion (never built here) decomposes without panicking.
+        assert_eq!(
+            Attitude::from_header_deg(f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0),
+            None
+        );
+        // A zero quaternion (never built here) decomposes without panicking, and is refused.
         let r = Relative::of(Quaternion::new(0.0, 0.0, 0.0, 0.0));
-        assert!(r.roll_deg.is_finite() && r.residual_deg.is_finite());
+        assert_ne!(r.check(0.0, 0.5, 1.0), Verdict::Accepted);
+        // The forward axis turned over: w = x = 0 is a 180° residual.
+        let r = Relative::of(Quaternion::new(0.0, 0.0, 1.0, 0.0));
+        assert_eq!((r.roll_deg, r.residual_deg), (0.0, 180.0));
     }
 }

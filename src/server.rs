@@ -161,7 +161,12 @@ impl<'a> Server<'a> {
                 self.status.pair = found.and_then(|r| r.err());
                 #[cfg(feature = "defmt")]
                 if let Some(p) = self.status.pair {
-                    log!("pair {} -> {} rejected: {}", p.reference, p.source, p.verdict.reason());
+                    log!(
+                        "pair {} -> {} rejected: {}",
+                        p.reference,
+                        p.source,
+                        p.verdict.reason()
+                    );
                 }
                 let _ = led.set_low();
                 return self.send_status(uart, false);

@@ -136,10 +136,7 @@ fn replies(bytes: &[u8]) -> Vec<Reply> {
                         .collect(),
                 },
                 Message::Status {
-                    status:
-                        Status {
-                            pair: Some(p), ..
-                        },
+                    status: Status { pair: Some(p), .. },
                     ..
                 } if !p.verdict.accepted() => Reply::Rejected {
                     reference: p.reference,

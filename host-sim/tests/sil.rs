@@ -4,6 +4,8 @@
 
 use std::process::Command;
 
+mod common;
+
 fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
 }
@@ -110,4 +112,35 @@ fn recording_with_unfit_geometry_is_refused() {
         err.contains("geometry does not fit the model"),
         "stderr: {err}"
     );
+}
+
+#[test]
+fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
+    let tol = epssn::config::PAIR_RESIDUAL_TOLERANCE_DEG;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = common::jittered_recording(dir.path(), 0.5 * tol, 2.0 * tol);
+    let out = host_sim()
+        .args(["sil", "--frames", "8", "--json", "--recording"])
+        .arg(&rec)
+        .output()
+        .expect("run host-sim sil");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "host-sim sil failed: {}\n{}",
+        stdout,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    // Frames 1,2 (low jitter) pair; 3,4 (high) are refused for their residual; 5,6 pair;
+    // 7,8 are refused. Seqs are frame index + 1.
+    assert_eq!(r["pairs"], serde_json::json!([[1, [2]], [5, [6]]]), "{r}");
+    assert_eq!(
+        r["rejected_pairs"],
+        serde_json::json!([[3, 4, "residual"], [7, 8, "residual"]]),
+        "{r}"
+    );
+    assert_eq!(r["rejections_agree"], true);
+    assert_eq!(r["bit_exact"], true);
+    assert_eq!(r["budget_violations"], serde_json::json!([]));
 }

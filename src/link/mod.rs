@@ -183,16 +183,16 @@ mod tests {
     fn attitude_and_pair_fields_are_checked() {
         let img = image(1);
         let frame_with = |q: Option<[f32; 4]>| {
-            let h = Header {
+            let mut h = Header {
                 t: kind::FRAME,
                 seq: 1,
                 roll: Some(7.0),
-                q,
                 r: Some(config::INPUT_RANGE_BINS as u32),
                 b: Some(config::INPUT_COLUMNS as u32),
                 len: Some(img.len() as u32),
                 ..Header::default()
             };
+            h.set_q(q);
             let mut d = Decoder::new();
             for b in raw_bytes(&h, &img) {
                 d.push(b);
@@ -216,6 +216,22 @@ mod tests {
                 "{bad:?}"
             );
         }
+        // Some of the four fields only: refused.
+        let h = Header {
+            t: kind::FRAME,
+            seq: 1,
+            roll: Some(7.0),
+            r: Some(config::INPUT_RANGE_BINS as u32),
+            b: Some(config::INPUT_COLUMNS as u32),
+            len: Some(img.len() as u32),
+            qw: Some(1.0),
+            ..Header::default()
+        };
+        let mut d = Decoder::new();
+        for b in raw_bytes(&h, &img) {
+            d.push(b);
+        }
+        assert_eq!(d.poll().unwrap(), Err(DecodeError::BadField { field: "q" }));
         // A status with an unknown reason or missing figures is refused.
         let status_with = |why: &'static str, proll: Option<f32>| {
             let h = Header {

@@ -254,9 +254,7 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
         let seq = i as u32 + 1;
         let attitude = h.attitude().and_then(epssn::attitude::Attitude::from_array);
         let newest = cache
-            .insert_with_attitude(seq, roll, attitude, |f| {
-                model.features(&image, &mut ws, f)
-            })
+            .insert_with_attitude(seq, roll, attitude, |f| model.features(&image, &mut ws, f))
             .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
         let found = cache.find_checked(&newest, config::VIEWS);
         let rejected = found.as_ref().and_then(|r| r.as_ref().err()).copied();

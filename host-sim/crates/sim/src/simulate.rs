@@ -204,7 +204,11 @@ pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
         .map(|k| {
             let mut phi = std::f64::consts::TAU * rng.random::<f64>();
             // One axis: the same draw picks the sign.
-            let half = if phi.cos() >= 0.0 { 0.0 } else { std::f64::consts::PI };
+            let half = if phi.cos() >= 0.0 {
+                0.0
+            } else {
+                std::f64::consts::PI
+            };
             match axes {
                 JitterAxes::Both => {}
                 JitterAxes::Pitch => phi = half,

@@ -99,7 +99,15 @@ fn pose_jitter_is_rendered_and_recorded_in_the_headers() {
     let plain = tempfile::tempdir().unwrap();
     let jittered = tempfile::tempdir().unwrap();
     simulate(plain.path(), SceneKind::Terrain, 3, 5, Split::Test, false);
-    simulate_jittered(jittered.path(), SceneKind::Terrain, 3, 5, Split::Test, false, 0.5);
+    simulate_jittered(
+        jittered.path(),
+        SceneKind::Terrain,
+        3,
+        5,
+        Split::Test,
+        false,
+        0.5,
+    );
     let attitude = |dir: &Path, k: usize| {
         let r = ArisReader::open(&dir.join(format!("view{k}.aris"))).unwrap();
         Attitude::from_array(r.frame_header(0).unwrap().attitude().unwrap()).unwrap()
