@@ -219,10 +219,12 @@ impl Relative {
         roll_tolerance_deg: f64,
         residual_tolerance_deg: f64,
     ) -> Verdict {
-        // `!(a <= b)` so that NaN is refused.
-        if !((f64::from(self.roll_deg) - baseline_deg).abs() <= roll_tolerance_deg) {
+        // Comparisons with NaN are false, so NaN fails both.
+        let roll_ok = (f64::from(self.roll_deg) - baseline_deg).abs() <= roll_tolerance_deg;
+        let residual_ok = f64::from(self.residual_deg) <= residual_tolerance_deg;
+        if !roll_ok {
             Verdict::Roll
-        } else if !(f64::from(self.residual_deg) <= residual_tolerance_deg) {
+        } else if !residual_ok {
             Verdict::Residual
         } else {
             Verdict::Accepted

@@ -109,7 +109,7 @@ fn pose_jitter_is_rendered_and_recorded_in_the_headers() {
         0.5,
     );
     let attitude = |dir: &Path, k: usize| {
-        let r = ArisReader::open(&dir.join(format!("view{k}.aris"))).unwrap();
+        let r = ArisReader::open(dir.join(format!("view{k}.aris"))).unwrap();
         Attitude::from_array(r.frame_header(0).unwrap().attitude().unwrap()).unwrap()
     };
     for (p, j) in sample_dirs(plain.path(), Split::Test)
