@@ -120,7 +120,15 @@ fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
     let dir = tempfile::tempdir().unwrap();
     let rec = common::jittered_recording(dir.path(), 0.5 * tol, 2.0 * tol);
     let out = host_sim()
-        .args(["sil", "--frames", "8", "--json", "--recording"])
+        .args([
+            "sil",
+            "--frames",
+            "8",
+            "--faults",
+            "0",
+            "--json",
+            "--recording",
+        ])
         .arg(&rec)
         .output()
         .expect("run host-sim sil");
@@ -132,12 +140,18 @@ fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
         String::from_utf8_lossy(&out.stderr)
     );
     let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
-    // Frames 1,2 (low jitter) pair; 3,4 (high) are refused for their residual; 5,6 pair;
-    // 7,8 are refused. Seqs are frame index + 1.
-    assert_eq!(r["pairs"], serde_json::json!([[1, [2]], [5, [6]]]), "{r}");
+    // Seqs are frame index + 1; odd seqs are references (roll 0, level), even ones sources
+    // (roll 7°), 2 and 6 with the low jitter, 4 and 8 with the high. The device pairs each new
+    // frame with the cache (the lower roll is the reference), so 3 pairs with the cached 2 as
+    // well; every pair with source 4 or 8 is refused for its residual, on device and host.
+    assert_eq!(
+        r["pairs"],
+        serde_json::json!([[1, [2]], [3, [2]], [5, [6]], [7, [6]]]),
+        "{r}"
+    );
     assert_eq!(
         r["rejected_pairs"],
-        serde_json::json!([[3, 4, "residual"], [7, 8, "residual"]]),
+        serde_json::json!([[3, 4, "residual"], [5, 4, "residual"], [7, 8, "residual"]]),
         "{r}"
     );
     assert_eq!(r["rejections_agree"], true);
