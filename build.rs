@@ -272,9 +272,22 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
             "Roll tolerance for pairing frames, degrees.",
             spec.baseline.pair_tolerance_deg,
         ),
+        (
+            "PAIR_RESIDUAL_TOLERANCE_DEG",
+            "Largest tilt of the source's forward axis relative to the reference's (the pitch/yaw \
+             residual of the relative rotation) for pairing frames with attitude, degrees; \
+             infinite when the spec sets none (docs/POSE.md).",
+            spec.baseline
+                .pair_residual_tolerance_deg
+                .unwrap_or(f64::INFINITY),
+        ),
     ];
     for (name, doc, v) in fconsts {
-        writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
+        if v.is_infinite() {
+            writeln!(s, "/// {doc}\npub const {name}: f64 = f64::INFINITY;").unwrap();
+        } else {
+            writeln!(s, "/// {doc}\npub const {name}: f64 = {v:?};").unwrap();
+        }
     }
     // Soft-argmax depth constants in unsigned Q16.16 metres (docs/QUANTISATION.md).
     let q16 = |x: f64| (x * 65536.0).round() as u32;

@@ -22,6 +22,7 @@ fn main() {
         Message::Frame {
             seq: 1,
             roll_deg: 7.0,
+            attitude: epssn::attitude::Attitude::from_header_deg(12.0, 0.5, 0.0, 0.0, 0.0, 7.0),
             image: &image,
         },
         Message::Depth {
@@ -30,6 +31,7 @@ fn main() {
             sources,
             instructions: 47_793_040,
             depth: DepthData::Values(&depth),
+            pair: None,
         },
         Message::StatusRequest { seq: 5 },
         Message::Status {

@@ -38,6 +38,7 @@ extern crate std;
 // script and the host tools); re-exported here so `epssn::spec` and `epssn::geometry` stay.
 pub use epssn_spec::{crc32, geometry, grids, spec};
 
+pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod dsp;

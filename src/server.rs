@@ -1,5 +1,6 @@
 //! The link server the firmware runs: decodes messages from any `embedded_io` byte stream,
-//! pairs frames by roll, answers with depth maps, status and errors (docs/LINK.md).
+//! pairs frames by roll and checks each candidate pair's relative rotation (docs/POSE.md),
+//! answers with depth maps, status and errors (docs/LINK.md).
 //! Board-independent: the UART comes in as `embedded_io` traits, the busy LED as an
 //! `embedded_hal` [`OutputPin`], the clock and the stack probe as closures, so host tests drive
 //! it with a mock serial line and pin.
@@ -135,6 +136,7 @@ impl<'a> Server<'a> {
         led: &mut L,
         seq: u32,
         roll_deg: f32,
+        attitude: Option<crate::attitude::Attitude>,
         image: &[u8],
     ) -> Result<(), W::Error> {
         let _ = led.set_high();
@@ -143,7 +145,7 @@ impl<'a> Server<'a> {
         let ws = &mut *self.workspace;
         let inserted = self
             .cache
-            .insert(seq, roll_deg, |f| model.features(image, ws, f));
+            .insert_with_attitude(seq, roll_deg, attitude, |f| model.features(image, ws, f));
         let newest = match inserted {
             Ok(f) => f,
             Err(e) => {
@@ -152,10 +154,25 @@ impl<'a> Server<'a> {
             }
         };
         self.status.frames = self.status.frames.wrapping_add(1);
-        let Some(set) = self.cache.find(&newest, config::VIEWS) else {
-            let _ = led.set_low();
-            return self.send_status(uart, false);
+        // No candidate, or one the gate rejected: a status reply that says which and why.
+        let set = match self.cache.find_checked(&newest, config::VIEWS) {
+            Some(Ok(set)) => set,
+            found => {
+                self.status.pair = found.and_then(|r| r.err());
+                #[cfg(feature = "defmt")]
+                if let Some(p) = self.status.pair {
+                    log!(
+                        "pair {} -> {} rejected: {}",
+                        p.reference,
+                        p.source,
+                        p.verdict.reason()
+                    );
+                }
+                let _ = led.set_low();
+                return self.send_status(uart, false);
+            }
         };
+        self.status.pair = Some(set.check);
         // The depth map, in a block so the borrows of the cached features end before replying.
         let computed = {
             let mut sources: heapless::Vec<&[i8], { link::MAX_SOURCES }> = heapless::Vec::new();
@@ -194,6 +211,7 @@ impl<'a> Server<'a> {
             sources: source_seqs,
             instructions,
             depth: DepthData::Values(&depth[..]),
+            pair: Some(set.check),
         };
         // `self.send` would borrow `self` again; encode directly.
         match encode(&msg, &mut |b: &[u8]| uart.write_all(b)) {
@@ -217,13 +235,15 @@ impl<'a> Server<'a> {
             Ok(Message::Frame {
                 seq,
                 roll_deg,
+                attitude,
                 image,
-            }) => self.frame(uart, led, seq, roll_deg, image)?,
+            }) => self.frame(uart, led, seq, roll_deg, attitude, image)?,
             Ok(Message::StatusRequest { .. }) => self.send_status(uart, false)?,
             Ok(Message::Hello { status: None, .. }) => {
                 // A new session: the decoder accepted the hello whatever its seq; the frames
                 // of the old session are forgotten and the replies' seqs restart at 1.
                 self.cache.clear();
+                self.status.pair = None;
                 self.tx_seq = 0;
                 self.send_status(uart, true)?;
             }

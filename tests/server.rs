@@ -6,7 +6,7 @@ use std::cell::Cell;
 use std::convert::Infallible;
 
 use epssn::config;
-use epssn::link::{encode, Decoder, ErrorCode, Message};
+use epssn::link::{encode, Decoder, ErrorCode, Message, Status};
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
 use epssn::server::Server;
@@ -89,6 +89,13 @@ enum Reply {
         errors: u32,
     },
     Error(u16),
+    /// A status reply carrying the pose gate's rejection.
+    Rejected {
+        reference: u32,
+        source: u32,
+        reason: &'static str,
+        residual_deg: f32,
+    },
     Hello {
         seq: u32,
         frames: u32,
@@ -127,6 +134,15 @@ fn replies(bytes: &[u8]) -> Vec<Reply> {
                     bits: (0..depth.len())
                         .map(|i| depth.get(i).unwrap().to_bits())
                         .collect(),
+                },
+                Message::Status {
+                    status: Status { pair: Some(p), .. },
+                    ..
+                } if !p.verdict.accepted() => Reply::Rejected {
+                    reference: p.reference,
+                    source: p.source,
+                    reason: p.verdict.reason(),
+                    residual_deg: p.residual_deg,
                 },
                 Message::Status { status, .. } => Reply::Status {
                     frames: status.frames,
@@ -236,11 +252,13 @@ fn a_view_set_gets_the_integer_reference_depth_map_bit_for_bit() {
         Message::Frame {
             seq: 1,
             roll_deg: 0.0,
+            attitude: None,
             image: &reference,
         },
         Message::Frame {
             seq: 2,
             roll_deg: config::ROLL_STEP_DEG as f32,
+            attitude: None,
             image: &source,
         },
         Message::Shutdown { seq: 3 },
@@ -290,6 +308,7 @@ fn frame(seq: u32, roll_deg: f32, image: &[u8]) -> Message<'_> {
     Message::Frame {
         seq,
         roll_deg,
+        attitude: None,
         image,
     }
 }
@@ -432,4 +451,53 @@ fn a_hello_with_counters_sent_to_the_device_is_unexpected() {
         got,
         vec![Reply::Error(ErrorCode::Unexpected.code()), status(0, 0, 1)]
     );
+}
+
+#[test]
+fn the_pose_gate_rejects_a_yawed_source_and_reports_why() {
+    use epssn::attitude::Attitude;
+    let blob = blob();
+    let mut rng = Rng(5);
+    let reference = synthetic_image(&mut rng, 0.0);
+    let source = synthetic_image(&mut rng, 0.4);
+    let step = config::ROLL_STEP_DEG as f32;
+    let posed = |seq, roll: f32, yaw: f32, image| Message::Frame {
+        seq,
+        roll_deg: roll,
+        attitude: Attitude::from_header_deg(yaw, 0.0, 0.0, 0.0, 0.0, roll),
+        image,
+    };
+    let tol = config::PAIR_RESIDUAL_TOLERANCE_DEG as f32;
+    let input = wire(&[
+        posed(1, 0.0, 0.0, &reference[..]),
+        // Yawed by twice the tolerance: refused, with its figures.
+        posed(2, step, 2.0 * tol.min(1.0), &source[..]),
+        // Within the tolerance: a depth map, the reference the same frame.
+        posed(3, step, 0.5 * tol.min(1.0), &source[..]),
+        Message::Shutdown { seq: 4 },
+    ]);
+    let (got, _) = serve(&blob, input);
+    assert_eq!(got.len(), 4, "{got:?}");
+    assert_eq!(got[0], status(1, 0, 0));
+    match got[1] {
+        Reply::Rejected {
+            reference: 1,
+            source: 2,
+            reason: "residual",
+            residual_deg,
+        } => assert!((residual_deg - 2.0 * tol.min(1.0)).abs() < 1e-3),
+        ref r => panic!("expected a rejection, got {r:?}"),
+    }
+    let expected = epssn_reference::reference_model::run(&blob, &[&reference, &source])
+        .unwrap()
+        .depth;
+    assert_eq!(
+        got[2],
+        Reply::Depth {
+            reference: 1,
+            sources: vec![3],
+            bits: expected,
+        }
+    );
+    assert_eq!(got[3], status(3, 1, 0));
 }

@@ -10,8 +10,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
+use epssn::attitude::Attitude;
 use epssn::config;
 use epssn::model::{Model, Workspace};
+use epssn::pairing::{check_pair, CachedFrame};
 use fixed::types::U16F16;
 use serde::Serialize;
 
@@ -80,6 +82,22 @@ pub struct PairReport {
     pub int8: Option<Metrics>,
 }
 
+/// One candidate pair (frames whose rotator rolls pair) and the pose gate's verdict on it
+/// (docs/POSE.md), the very check the device runs.
+#[derive(Clone, Debug, Serialize)]
+pub struct CandidateReport {
+    /// Frame indices, reference first.
+    pub frames: Vec<usize>,
+    /// The pair is used (a depth map is computed).
+    pub accepted: bool,
+    /// Relative roll, degrees: from the attitudes, or the rotator rolls' difference.
+    pub roll_deg: f64,
+    /// Tilt of the forward axis, degrees; null without attitude (the roll-only rule).
+    pub residual_deg: Option<f64>,
+    /// `ok`, `roll_only`, `roll` or `residual`.
+    pub reason: &'static str,
+}
+
 /// The run's summary (`--json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Summary {
@@ -99,8 +117,73 @@ pub struct Summary {
     pub bit_exact: bool,
     /// Per pair.
     pub details: Vec<PairReport>,
+    /// Every candidate pair with the pose gate's verdict, accepted or not (none with `--pair`).
+    pub candidates: Vec<CandidateReport>,
+    /// The residual tolerance of the gate, degrees (the spec's).
+    pub residual_tolerance_deg: f64,
     /// Warnings (recording, pairing).
     pub warnings: Vec<String>,
+}
+
+/// The pose gate on a candidate group: each source j checked at baseline j·step against the
+/// reference with the library's [`epssn::pairing::check_pair`]; the figures are those of the
+/// first rejected source, else of the one with the largest residual (as the device reports).
+pub fn gate(
+    group: &[usize],
+    rolls: &[Option<f64>],
+    attitudes: &[Option<Attitude>],
+) -> CandidateReport {
+    let frame = |i: usize| CachedFrame {
+        seq: i as u32,
+        roll_deg: rolls.get(i).copied().flatten().unwrap_or(f64::NAN) as f32,
+        attitude: attitudes.get(i).copied().flatten(),
+        slot: 0,
+    };
+    let reference = frame(group[0]);
+    let mut worst: Option<epssn::pairing::PairCheck> = None;
+    for (j, &src) in group.iter().enumerate().skip(1) {
+        let c = check_pair(
+            &reference,
+            &frame(src),
+            j,
+            config::ROLL_STEP_DEG,
+            config::PAIR_TOLERANCE_DEG,
+            config::PAIR_RESIDUAL_TOLERANCE_DEG,
+        );
+        let take = match worst {
+            None => true,
+            Some(w) => {
+                !c.verdict.accepted() || (w.verdict.accepted() && c.residual_deg > w.residual_deg)
+            }
+        };
+        if take {
+            worst = Some(c);
+        }
+        if !c.verdict.accepted() {
+            break;
+        }
+    }
+    let c = worst.unwrap_or(epssn::pairing::PairCheck {
+        reference: 0,
+        source: 0,
+        roll_deg: f32::NAN,
+        residual_deg: f32::NAN,
+        verdict: epssn::attitude::Verdict::Roll,
+    });
+    CandidateReport {
+        frames: group.to_vec(),
+        accepted: c.verdict.accepted(),
+        roll_deg: f64::from(c.roll_deg),
+        residual_deg: c
+            .residual_deg
+            .is_finite()
+            .then_some(f64::from(c.residual_deg)),
+        reason: c.verdict.reason(),
+    }
+}
+
+fn frame_attitude(reader: &ArisReader, i: usize) -> Option<Attitude> {
+    Attitude::from_array(reader.frame_header(i).ok()?.attitude()?)
 }
 
 fn frame_roll(reader: &ArisReader, i: usize) -> Option<f64> {
@@ -209,8 +292,31 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     let rolls: Vec<Option<f64>> = (0..reader.frame_count())
         .map(|i| frame_roll(&reader, i))
         .collect();
-    let groups = if args.pairs.is_empty() {
-        pair_by_roll(&rolls, args.views)
+    let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+        .map(|i| frame_attitude(&reader, i))
+        .collect();
+    let mut candidates = Vec::new();
+    let groups: Vec<Vec<usize>> = if args.pairs.is_empty() {
+        candidates = pair_by_roll(&rolls, args.views)
+            .iter()
+            .map(|g| gate(g, &rolls, &attitudes))
+            .collect();
+        let rejected = candidates.iter().filter(|c| !c.accepted).count();
+        if rejected > 0 {
+            warnings.push(format!(
+                "{rejected} candidate pair(s) rejected by the pose gate (see candidates)"
+            ));
+        }
+        if candidates.iter().any(|c| c.reason == "roll_only") {
+            warnings.push(
+                "frames without attitude paired by the roll-only rule (reason roll_only)".into(),
+            );
+        }
+        candidates
+            .iter()
+            .filter(|c| c.accepted)
+            .map(|c| c.frames.clone())
+            .collect()
     } else {
         ensure!(
             args.views == 2,
@@ -231,11 +337,32 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     };
     if groups.is_empty() {
         bail!(
-            "no frames of {} pair at the {} ° roll baseline (±{} °); give --pair REF:SRC for \
-             recordings without rotator roll",
+            "no frames of {} pair at the {} ° roll baseline (±{} °, residual ≤ {} °){}; give \
+             --pair REF:SRC for recordings without rotator roll",
             recording.display(),
             config::ROLL_STEP_DEG,
-            config::PAIR_TOLERANCE_DEG
+            config::PAIR_TOLERANCE_DEG,
+            config::PAIR_RESIDUAL_TOLERANCE_DEG,
+            if candidates.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    ": the pose gate rejected all {} candidates ({})",
+                    candidates.len(),
+                    candidates
+                        .iter()
+                        .map(|c| format!(
+                            "{:?} {} roll {:.3}° residual {}",
+                            c.frames,
+                            c.reason,
+                            c.roll_deg,
+                            c.residual_deg
+                                .map_or_else(|| "n/a".into(), |r| format!("{r:.3}°"))
+                        ))
+                        .collect::<Vec<_>>()
+                        .join("; ")
+                )
+            }
         );
     }
     let bundle = weights::load(&weights_dir)?;
@@ -379,6 +506,8 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             / details.len() as f64,
         bit_exact: details.iter().all(|d| d.bit_exact),
         details,
+        candidates,
+        residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
         warnings,
     };
     std::fs::write(
@@ -429,6 +558,17 @@ fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -
             "MISMATCH"
         }
     )?;
+    for c in s.candidates.iter().filter(|c| !c.accepted) {
+        writeln!(
+            out,
+            "  frames {:?} rejected by the pose gate: {} (roll {:.3}°, residual {})",
+            c.frames,
+            c.reason,
+            c.roll_deg,
+            c.residual_deg
+                .map_or_else(|| "n/a".into(), |r| format!("{r:.3}°"))
+        )?;
+    }
     for w in &s.warnings {
         writeln!(out, "warning: {w}")?;
     }

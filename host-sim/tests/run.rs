@@ -3,6 +3,9 @@
 
 use std::process::Command;
 
+mod common;
+use common::jittered_recording;
+
 fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
 }
@@ -120,4 +123,47 @@ fn a_truncated_recording_is_refused_with_the_readers_cause() {
             "{err}"
         );
     }
+}
+
+#[test]
+fn a_jittered_recording_pairs_exactly_the_pairs_within_the_residual_tolerance() {
+    let tol = epssn::config::PAIR_RESIDUAL_TOLERANCE_DEG;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = jittered_recording(dir.path(), 0.5 * tol, 2.0 * tol);
+    let o = host_sim()
+        .args(["run", "--json", "--recording"])
+        .arg(&rec)
+        .arg("--gt")
+        .arg(dir.path().join("rec/gt"))
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let c = v["candidates"].as_array().unwrap();
+    // Frames 0,1 (low), 2,3 (high), 4,5 (low), ...: every even pair accepted, every odd one
+    // rejected for its residual, each with the residual the simulator put in.
+    let frames: Vec<u64> = c.iter().map(|x| x["frames"][0].as_u64().unwrap()).collect();
+    assert_eq!(frames, [0, 2, 4, 6, 8, 10]);
+    for (i, x) in c.iter().enumerate() {
+        let low = i % 2 == 0;
+        assert_eq!(x["accepted"], low, "{x}");
+        assert_eq!(x["reason"], if low { "ok" } else { "residual" }, "{x}");
+        let want = if low { 0.5 * tol } else { 2.0 * tol };
+        assert!(
+            (x["residual_deg"].as_f64().unwrap() - want).abs() < 1e-3,
+            "{x}"
+        );
+        assert!((x["roll_deg"].as_f64().unwrap() - 7.0).abs() < 1e-3, "{x}");
+    }
+    assert_eq!(v["pairs"], 3);
+    assert_eq!(v["bit_exact"], true);
+    let used: Vec<u64> = v["details"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d["frames"][0].as_u64().unwrap())
+        .collect();
+    assert_eq!(used, [0, 4, 8]);
 }

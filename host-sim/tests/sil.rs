@@ -4,6 +4,8 @@
 
 use std::process::Command;
 
+mod common;
+
 fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
 }
@@ -152,4 +154,49 @@ fn short_soak_keeps_maps_bit_exact_and_the_stack_unchanged() {
     assert_eq!(f["failed"], 0);
     assert_eq!(r["after_faults_bit_exact"], true);
     assert_eq!(r["alive"], true);
+}
+
+#[test]
+fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
+    let tol = epssn::config::PAIR_RESIDUAL_TOLERANCE_DEG;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = common::jittered_recording(dir.path(), 0.5 * tol, 2.0 * tol);
+    let out = host_sim()
+        .args([
+            "sil",
+            "--frames",
+            "8",
+            "--faults",
+            "0",
+            "--json",
+            "--recording",
+        ])
+        .arg(&rec)
+        .output()
+        .expect("run host-sim sil");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "host-sim sil failed: {}\n{}",
+        stdout,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    // Seqs are frame index + 1; odd seqs are references (roll 0, level), even ones sources
+    // (roll 7°), 2 and 6 with the low jitter, 4 and 8 with the high. The device pairs each new
+    // frame with the cache (the lower roll is the reference), so 3 pairs with the cached 2 as
+    // well; every pair with source 4 or 8 is refused for its residual, on device and host.
+    assert_eq!(
+        r["pairs"],
+        serde_json::json!([[1, [2]], [3, [2]], [5, [6]], [7, [6]]]),
+        "{r}"
+    );
+    assert_eq!(
+        r["rejected_pairs"],
+        serde_json::json!([[3, 4, "residual"], [5, 4, "residual"], [7, 8, "residual"]]),
+        "{r}"
+    );
+    assert_eq!(r["rejections_agree"], true);
+    assert_eq!(r["bit_exact"], true);
+    assert_eq!(r["budget_violations"], serde_json::json!([]));
 }

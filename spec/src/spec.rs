@@ -88,6 +88,11 @@ pub struct BaselineSpec {
     pub lever_arm_m: [f64; 3],
     /// Two frames pair when their roll difference is within this of the baseline, degrees.
     pub pair_tolerance_deg: f64,
+    /// Frames with attitude pair only when the relative rotation tilts the forward axis by at
+    /// most this (its pitch/yaw residual), degrees; chosen from measurement in docs/POSE.md.
+    /// Absent (older specs): the residual is reported but not checked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pair_residual_tolerance_deg: Option<f64>,
 }
 
 /// Feature maps.

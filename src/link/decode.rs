@@ -6,11 +6,14 @@ use crate::config;
 use crate::crc32::Crc32;
 
 use super::header::{ErrorCode, Header};
+#[cfg(not(target_os = "none"))]
+use super::message::pair_of;
 use super::message::{DepthData, Message, Status};
 use super::{
     kind, CRC_LEN, DEPTH_PAYLOAD_LEN, FRAME_PAYLOAD_LEN, MAX_HEADER_LEN, MAX_MESSAGE_LEN,
     MAX_PAYLOAD_LEN, PREAMBLE_LEN, SYNC,
 };
+use crate::attitude::Attitude;
 
 /// Why the decoder rejected bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -144,6 +147,12 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
     match h.t {
         kind::FRAME => {
             need(h.roll.is_some_and(f32::is_finite), "roll")?;
+            // Optional (an older host sends none), but when present a unit quaternion.
+            need(
+                h.q()
+                    .is_none_or(|q| q.and_then(Attitude::from_array).is_some()),
+                "q",
+            )?;
             let (r, b) = match (h.r, h.b) {
                 (Some(r), Some(b)) => (r, b),
                 _ => return Err(DecodeError::BadField { field: "r/b" }),
@@ -157,6 +166,7 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.reference.is_some(), "ref")?;
             need(h.instr.is_some(), "instr")?;
             need(h.src.as_ref().is_some_and(|s| !s.is_empty()), "src")?;
+            check_pair_fields(h)?;
             expect(DEPTH_PAYLOAD_LEN)
         }
         kind::STATUS => {
@@ -164,6 +174,7 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.depths.is_some(), "depths")?;
             need(h.errors.is_some(), "errors")?;
             need(h.stack.is_some(), "stack")?;
+            check_pair_fields(h)?;
             expect(0)
         }
         kind::ERROR => {
@@ -173,6 +184,20 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
         kind::STATUS_REQUEST | kind::SHUTDOWN | kind::HELLO => expect(0),
         _ => Err(DecodeError::UnknownType),
     }
+}
+
+/// The pair fields of a status or depth message (host side: the device refuses both kinds
+/// and parses none of these fields, so its build skips the check).
+#[cfg(not(target_os = "none"))]
+fn check_pair_fields(h: &Header<'_>) -> Result<(), DecodeError> {
+    pair_of(h)
+        .map(|_| ())
+        .map_err(|field| DecodeError::BadField { field })
+}
+
+#[cfg(target_os = "none")]
+fn check_pair_fields(_: &Header<'_>) -> Result<(), DecodeError> {
+    Ok(())
 }
 
 fn parse_header(json: &[u8]) -> Result<Header<'_>, DecodeError> {
@@ -189,6 +214,11 @@ fn status_of(h: &Header<'_>) -> Status {
         errors: h.errors.unwrap_or(0),
         stack_high_water: h.stack.unwrap_or(0),
         cached: h.cached.unwrap_or(0),
+        // Checked by check_header (the device has none: it parses no pair fields).
+        #[cfg(not(target_os = "none"))]
+        pair: pair_of(h).ok().flatten(),
+        #[cfg(target_os = "none")]
+        pair: None,
     }
 }
 
@@ -199,10 +229,15 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
         kind::FRAME => Message::Frame {
             seq,
             roll_deg: h.roll.unwrap_or(0.0),
+            attitude: h.q().flatten().and_then(Attitude::from_array),
             image: payload,
         },
         kind::DEPTH => Message::Depth {
             seq,
+            #[cfg(not(target_os = "none"))]
+            pair: pair_of(&h).ok().flatten(),
+            #[cfg(target_os = "none")]
+            pair: None,
             reference: h.reference.unwrap_or(0),
             sources: h.src.unwrap_or_default(),
             instructions: h.instr.unwrap_or(0),

@@ -15,6 +15,20 @@ pub struct Header<'a> {
     /// Frame: roll of the sonar, degrees.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub roll: Option<f32>,
+    /// Frame: the sonar's attitude quaternion (docs/POSE.md), `w`; absent = roll-only
+    /// pairing. Four scalar fields rather than an array: a JSON array parser costs the
+    /// firmware 4 KiB of flash it does not have.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qw: Option<f32>,
+    /// Frame: attitude, `x`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qx: Option<f32>,
+    /// Frame: attitude, `y`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qy: Option<f32>,
+    /// Frame: attitude, `z`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qz: Option<f32>,
     /// Frame: range bins of the polar image.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub r: Option<u32>,
@@ -48,6 +62,28 @@ pub struct Header<'a> {
     /// Status: feature maps cached for pairing.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cached: Option<u32>,
+    /// Status, depth: `seq` of the reference of the last candidate pair checked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub pref: Option<u32>,
+    /// Status, depth: `seq` of its source the figures are of.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub psrc: Option<u32>,
+    /// Status, depth: its relative roll, degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub proll: Option<f32>,
+    /// Status, depth: its residual tilt, degrees (absent without attitude).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub pres: Option<f32>,
+    /// Status, depth: the verdict, [`Verdict::reason`](crate::attitude::Verdict::reason).
+    // The device only sends these five (it refuses status and depth messages), so its build
+    // does not parse them: 1 KiB of flash.
+    #[serde(default, borrow, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub why: Option<&'a str>,
     /// Error: [`ErrorCode`] number.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub code: Option<u16>,
@@ -84,6 +120,24 @@ pub enum ErrorCode {
     Model = 11,
     /// The line went idle inside a message.
     Truncated = 12,
+}
+
+impl Header<'_> {
+    /// The attitude fields as `[w, x, y, z]`: `None` when all are absent, `Some(None)` when
+    /// only some are (a malformed frame).
+    pub fn q(&self) -> Option<Option<[f32; 4]>> {
+        match (self.qw, self.qx, self.qy, self.qz) {
+            (None, None, None, None) => None,
+            (Some(w), Some(x), Some(y), Some(z)) => Some(Some([w, x, y, z])),
+            _ => Some(None),
+        }
+    }
+
+    /// Sets the attitude fields.
+    pub fn set_q(&mut self, q: Option<[f32; 4]>) {
+        let [w, x, y, z] = q.map_or([None; 4], |q| q.map(Some));
+        (self.qw, self.qx, self.qy, self.qz) = (w, x, y, z);
+    }
 }
 
 impl ErrorCode {

@@ -4,7 +4,9 @@ use core::fmt;
 
 use fixed::types::U16F16;
 
+use crate::attitude::{Attitude, Verdict};
 use crate::config;
+use crate::pairing::PairCheck;
 
 use super::header::Header;
 use super::{kind, MAX_ERROR_TEXT, MAX_SOURCES};
@@ -28,8 +30,8 @@ pub fn error_text(e: &impl fmt::Display) -> heapless::String<MAX_ERROR_TEXT> {
     cut.0
 }
 
-/// Device counters carried by a status message.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+/// Device counters carried by a status message, and the last pairing decision.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Status {
     /// Frames accepted.
@@ -42,6 +44,46 @@ pub struct Status {
     pub stack_high_water: u32,
     /// Feature maps cached for pairing.
     pub cached: u32,
+    /// The candidate pair the last frame formed and the gate's verdict on it (a status reply
+    /// after a frame carries a rejection; none when the frame formed no candidate).
+    pub pair: Option<PairCheck>,
+}
+
+/// Writes a pair check into a header. Not inlined: one copy for its two callers (flash).
+#[inline(never)]
+fn put_pair(h: &mut Header<'_>, pair: &Option<PairCheck>) {
+    if let Some(p) = pair {
+        h.pref = Some(p.reference);
+        h.psrc = Some(p.source);
+        h.proll = Some(p.roll_deg);
+        // JSON has no NaN: a missing residual (roll-only) is an absent field.
+        h.pres = p.residual_deg.is_finite().then_some(p.residual_deg);
+        h.why = Some(p.verdict.reason());
+    }
+}
+
+#[cfg_attr(target_os = "none", allow(dead_code))]
+/// The pair check of a received header: `None` when it carries none, `Err` when it is
+/// incomplete or its reason unknown.
+pub(super) fn pair_of(h: &Header<'_>) -> Result<Option<PairCheck>, &'static str> {
+    let Some(why) = h.why else {
+        return Ok(None);
+    };
+    let verdict = Verdict::ALL
+        .iter()
+        .copied()
+        .find(|v| v.reason() == why)
+        .ok_or("why")?;
+    match (h.pref, h.psrc, h.proll) {
+        (Some(reference), Some(source), Some(roll_deg)) => Ok(Some(PairCheck {
+            reference,
+            source,
+            roll_deg,
+            residual_deg: h.pres.unwrap_or(f32::NAN),
+            verdict,
+        })),
+        _ => Err("pref/psrc/proll"),
+    }
 }
 
 /// A depth map payload: values to send, or received little-endian bytes.
@@ -105,6 +147,8 @@ pub enum Message<'a> {
         seq: u32,
         /// Sonar roll, degrees.
         roll_deg: f32,
+        /// The sonar's attitude; `None` (an older host) pairs by the roll-only rule.
+        attitude: Option<Attitude>,
         /// The image.
         image: &'a [u8],
     },
@@ -120,6 +164,8 @@ pub enum Message<'a> {
         instructions: u32,
         /// The map, `config::DEPTH_LEN` values, `[E][A]`, metres.
         depth: DepthData<'a>,
+        /// The gate's figures for the pair (its residual, or the roll-only fallback).
+        pair: Option<PairCheck>,
     },
     /// Host → device: status request.
     StatusRequest {
@@ -193,9 +239,13 @@ impl Message<'_> {
         };
         let payload = match self {
             Message::Frame {
-                roll_deg, image, ..
+                roll_deg,
+                attitude,
+                image,
+                ..
             } => {
                 h.roll = Some(*roll_deg);
+                h.set_q(attitude.map(|a| a.to_array()));
                 h.r = Some(config::INPUT_RANGE_BINS as u32);
                 h.b = Some(config::INPUT_COLUMNS as u32);
                 Payload::Bytes(image)
@@ -205,11 +255,13 @@ impl Message<'_> {
                 sources,
                 instructions,
                 depth,
+                pair,
                 ..
             } => {
                 h.reference = Some(*reference);
                 h.src = Some(sources.clone());
                 h.instr = Some(*instructions);
+                put_pair(&mut h, pair);
                 match depth {
                     DepthData::Values(v) => Payload::Depth(v),
                     DepthData::Bytes(b) => Payload::Bytes(b),
@@ -225,6 +277,7 @@ impl Message<'_> {
                 h.errors = Some(status.errors);
                 h.stack = Some(status.stack_high_water);
                 h.cached = Some(status.cached);
+                put_pair(&mut h, &status.pair);
                 Payload::Bytes(&[])
             }
             Message::Error { code, msg, .. } => {

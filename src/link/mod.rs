@@ -88,10 +88,22 @@ pub mod kind {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::attitude::{Attitude, Verdict};
     use crate::crc32::Crc32;
+    use crate::pairing::PairCheck;
     use core::fmt;
     use fixed::types::U16F16;
     use std::vec::Vec;
+
+    fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
+        let mut v = Vec::new();
+        encode_raw(h, message::Payload::Bytes(payload), &mut |b: &[u8]| {
+            v.extend_from_slice(b);
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        v
+    }
 
     fn wire(msg: &Message<'_>) -> Vec<u8> {
         let mut v = Vec::new();
@@ -168,6 +180,99 @@ mod tests {
     }
 
     #[test]
+    fn attitude_and_pair_fields_are_checked() {
+        let img = image(1);
+        let frame_with = |q: Option<[f32; 4]>| {
+            let mut h = Header {
+                t: kind::FRAME,
+                seq: 1,
+                roll: Some(7.0),
+                r: Some(config::INPUT_RANGE_BINS as u32),
+                b: Some(config::INPUT_COLUMNS as u32),
+                len: Some(img.len() as u32),
+                ..Header::default()
+            };
+            h.set_q(q);
+            let mut d = Decoder::new();
+            for b in raw_bytes(&h, &img) {
+                d.push(b);
+            }
+            match d.poll().unwrap() {
+                Ok(Message::Frame { attitude, .. }) => Ok(attitude.map(|a| a.to_array())),
+                Ok(m) => panic!("{m:?}"),
+                Err(e) => Err(e),
+            }
+        };
+        // An older host's frame (no `q`) decodes, without attitude: the roll-only rule.
+        assert_eq!(frame_with(None), Ok(None));
+        assert_eq!(
+            frame_with(Some([0.0, 1.0, 0.0, 0.0])),
+            Ok(Some([0.0, 1.0, 0.0, 0.0]))
+        );
+        for bad in [[0.0; 4], [2.0, 0.0, 0.0, 0.0], [f32::MAX, 0.0, 0.0, 0.0]] {
+            assert_eq!(
+                frame_with(Some(bad)),
+                Err(DecodeError::BadField { field: "q" }),
+                "{bad:?}"
+            );
+        }
+        // Some of the four fields only: refused.
+        let h = Header {
+            t: kind::FRAME,
+            seq: 1,
+            roll: Some(7.0),
+            r: Some(config::INPUT_RANGE_BINS as u32),
+            b: Some(config::INPUT_COLUMNS as u32),
+            len: Some(img.len() as u32),
+            qw: Some(1.0),
+            ..Header::default()
+        };
+        let mut d = Decoder::new();
+        for b in raw_bytes(&h, &img) {
+            d.push(b);
+        }
+        assert_eq!(d.poll().unwrap(), Err(DecodeError::BadField { field: "q" }));
+        // A status with an unknown reason or missing figures is refused.
+        let status_with = |why: &'static str, proll: Option<f32>| {
+            let h = Header {
+                t: kind::STATUS,
+                seq: 2,
+                frames: Some(1),
+                depths: Some(0),
+                errors: Some(0),
+                stack: Some(0),
+                pref: Some(1),
+                psrc: Some(2),
+                proll,
+                why: Some(why),
+                ..Header::default()
+            };
+            let mut d = Decoder::new();
+            for b in raw_bytes(&h, &[]) {
+                d.push(b);
+            }
+            match d.poll().unwrap() {
+                Ok(Message::Status { status, .. }) => Ok(status.pair),
+                Ok(m) => panic!("{m:?}"),
+                Err(e) => Err(e),
+            }
+        };
+        assert_eq!(
+            status_with("maybe", Some(7.0)),
+            Err(DecodeError::BadField { field: "why" })
+        );
+        assert_eq!(
+            status_with("roll", None),
+            Err(DecodeError::BadField {
+                field: "pref/psrc/proll"
+            })
+        );
+        let p = status_with("roll_only", Some(7.0)).unwrap().unwrap();
+        assert_eq!(p.verdict, Verdict::RollOnly);
+        assert!(p.residual_deg.is_nan());
+    }
+
+    #[test]
     fn round_trip_every_type() {
         let img = image(3);
         let depth: Vec<U16F16> = (0..config::DEPTH_LEN)
@@ -179,6 +284,7 @@ mod tests {
             Message::Frame {
                 seq: 1,
                 roll_deg: -7.25,
+                attitude: Attitude::from_header_deg(10.0, 1.0, -2.0, 0.0, 0.0, -7.25),
                 image: &img,
             },
             Message::Depth {
@@ -187,6 +293,13 @@ mod tests {
                 sources: srcs,
                 instructions: 123_456_789,
                 depth: DepthData::Values(&depth),
+                pair: Some(PairCheck {
+                    reference: 10,
+                    source: 11,
+                    roll_deg: 7.01,
+                    residual_deg: 0.03,
+                    verdict: Verdict::Accepted,
+                }),
             },
             Message::StatusRequest { seq: 3 },
             Message::Status {
@@ -197,6 +310,13 @@ mod tests {
                     errors: 3,
                     stack_high_water: 2048,
                     cached: 2,
+                    pair: Some(PairCheck {
+                        reference: 3,
+                        source: 4,
+                        roll_deg: 6.9,
+                        residual_deg: 1.5,
+                        verdict: Verdict::Residual,
+                    }),
                 },
             },
             Message::Error {
@@ -217,6 +337,7 @@ mod tests {
                     errors: 3,
                     stack_high_water: 4,
                     cached: 5,
+                    pair: None,
                 }),
             },
         ];
@@ -347,6 +468,7 @@ mod tests {
         let mut bytes = wire(&Message::Frame {
             seq: 3,
             roll_deg: 0.0,
+            attitude: None,
             image: &img,
         });
         bytes[100] ^= 0x80;
@@ -602,6 +724,7 @@ mod tests {
                         wire(&Message::Frame {
                             seq,
                             roll_deg: 14.0,
+                            attitude: None,
                             image: &img,
                         })
                     } else {

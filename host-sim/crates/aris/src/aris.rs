@@ -343,7 +343,12 @@ mod frame_off {
     pub const VERSION: usize = 12;
     pub const WINDOW_START: usize = 52;
     pub const WINDOW_LENGTH: usize = 56;
+    pub const PITCH: usize = 136;
     pub const ROLL: usize = 144;
+    pub const HEADING: usize = 152;
+    pub const COMPASS_HEADING: usize = 160;
+    pub const COMPASS_PITCH: usize = 164;
+    pub const COMPASS_ROLL: usize = 168;
     pub const SONAR_X: usize = 232;
     pub const SONAR_Y: usize = 236;
     pub const SONAR_Z: usize = 240;
@@ -380,8 +385,19 @@ pub struct FrameHeader {
     pub window_start_m: f32,
     /// WindowLength as reported, metres (offset 56).
     pub window_length_m: f32,
-    /// Roll: platform roll, degrees (offset 144).
+    /// Pitch: platform pitch from the AUV integration, degrees, nose up positive (offset 136).
+    pub platform_pitch_deg: f32,
+    /// Roll: platform roll, degrees, starboard down positive (offset 144).
     pub platform_roll_deg: f32,
+    /// Heading: platform heading from the AUV integration, degrees clockwise from north seen
+    /// from above (offset 152).
+    pub platform_heading_deg: f32,
+    /// CompassHeading: the sonar's own compass, degrees (offset 160).
+    pub compass_heading_deg: f32,
+    /// CompassPitch: the sonar's own compass, degrees (offset 164).
+    pub compass_pitch_deg: f32,
+    /// CompassRoll: the sonar's own compass, degrees (offset 168).
+    pub compass_roll_deg: f32,
     /// SonarX (offset 232).
     pub sonar_x: f32,
     /// SonarY (offset 236).
@@ -437,7 +453,12 @@ impl FrameHeader {
             version: get_u32(raw, VERSION),
             window_start_m: get_f32(raw, WINDOW_START),
             window_length_m: get_f32(raw, WINDOW_LENGTH),
+            platform_pitch_deg: get_f32(raw, PITCH),
             platform_roll_deg: get_f32(raw, ROLL),
+            platform_heading_deg: get_f32(raw, HEADING),
+            compass_heading_deg: get_f32(raw, COMPASS_HEADING),
+            compass_pitch_deg: get_f32(raw, COMPASS_PITCH),
+            compass_roll_deg: get_f32(raw, COMPASS_ROLL),
             sonar_x: get_f32(raw, SONAR_X),
             sonar_y: get_f32(raw, SONAR_Y),
             sonar_z: get_f32(raw, SONAR_Z),
@@ -540,6 +561,43 @@ impl FrameHeader {
         self
     }
 
+    /// The rotator roll the pairing reads: SonarRoll, else RollAbsPosition (NaN without both).
+    pub fn rotator_roll_deg(&self) -> f32 {
+        if self.sonar_roll_deg.is_finite() {
+            self.sonar_roll_deg
+        } else {
+            self.roll_abs_position_deg
+        }
+    }
+
+    /// The sonar's attitude as a unit quaternion `[w, x, y, z]` (docs/POSE.md): the platform's
+    /// Heading, Pitch and Roll composed with the rotator's pan, tilt and roll (SonarPan/Tilt/
+    /// Roll, else the encoder positions; a missing pan or tilt axis counts as 0). `None` when
+    /// the platform angles or the rotator roll are not finite: such a frame pairs by the
+    /// roll-only rule.
+    pub fn attitude(&self) -> Option<[f32; 4]> {
+        let or = |a: f32, b: f32| if a.is_finite() { a } else { b };
+        let pan = or(self.sonar_pan_deg, self.pan_abs_position_deg);
+        let tilt = or(self.sonar_tilt_deg, self.tilt_abs_position_deg);
+        epssn::attitude::Attitude::from_header_deg(
+            self.platform_heading_deg,
+            self.platform_pitch_deg,
+            self.platform_roll_deg,
+            if pan.is_finite() { pan } else { 0.0 },
+            if tilt.is_finite() { tilt } else { 0.0 },
+            self.rotator_roll_deg(),
+        )
+        .map(|a| a.to_array())
+    }
+
+    /// Sets the platform attitude (Heading, Pitch, Roll), degrees.
+    pub fn with_platform_attitude_deg(mut self, heading: f32, pitch: f32, roll: f32) -> Self {
+        self.platform_heading_deg = heading;
+        self.platform_pitch_deg = pitch;
+        self.platform_roll_deg = roll;
+        self
+    }
+
     /// The bytes as read (or as constructed), without the typed fields applied.
     pub fn raw(&self) -> &[u8; HEADER_LEN] {
         &self.raw
@@ -554,7 +612,12 @@ impl FrameHeader {
         put_u32(&mut raw, VERSION, self.version);
         put_f32(&mut raw, WINDOW_START, self.window_start_m);
         put_f32(&mut raw, WINDOW_LENGTH, self.window_length_m);
+        put_f32(&mut raw, PITCH, self.platform_pitch_deg);
         put_f32(&mut raw, ROLL, self.platform_roll_deg);
+        put_f32(&mut raw, HEADING, self.platform_heading_deg);
+        put_f32(&mut raw, COMPASS_HEADING, self.compass_heading_deg);
+        put_f32(&mut raw, COMPASS_PITCH, self.compass_pitch_deg);
+        put_f32(&mut raw, COMPASS_ROLL, self.compass_roll_deg);
         put_f32(&mut raw, SONAR_X, self.sonar_x);
         put_f32(&mut raw, SONAR_Y, self.sonar_y);
         put_f32(&mut raw, SONAR_Z, self.sonar_z);

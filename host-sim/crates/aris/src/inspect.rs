@@ -33,6 +33,14 @@ pub struct FrameSummary {
     pub roll_abs_position_deg: Option<f64>,
     /// Roll (platform), degrees; null when NaN.
     pub platform_roll_deg: Option<f64>,
+    /// Pitch (platform), degrees; null when NaN.
+    pub platform_pitch_deg: Option<f64>,
+    /// Heading (platform), degrees; null when NaN.
+    pub platform_heading_deg: Option<f64>,
+    /// The sonar compass's heading, pitch and roll, degrees; null when NaN.
+    pub compass_deg: [Option<f64>; 3],
+    /// The attitude the pairing gate uses, `[w, x, y, z]` (docs/POSE.md); null without one.
+    pub attitude_q: Option<[f32; 4]>,
 }
 
 /// Everything `inspect` reports.
@@ -99,6 +107,14 @@ fn frame_summary(index: usize, h: &FrameHeader) -> FrameSummary {
         sonar_roll_deg: finite(h.sonar_roll_deg),
         roll_abs_position_deg: finite(h.roll_abs_position_deg),
         platform_roll_deg: finite(h.platform_roll_deg),
+        platform_pitch_deg: finite(h.platform_pitch_deg),
+        platform_heading_deg: finite(h.platform_heading_deg),
+        compass_deg: [
+            finite(h.compass_heading_deg),
+            finite(h.compass_pitch_deg),
+            finite(h.compass_roll_deg),
+        ],
+        attitude_q: h.attitude(),
     }
 }
 

@@ -345,6 +345,47 @@ pub struct QuantiseArgs {
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
+    /// Re-stamp the blob in this folder for the current spec instead of quantising: only the
+    /// spec CRC (header offset 12) and the blob CRC change, every tensor byte stays, and
+    /// `quantisation.json`'s `spec_hash` and `blob_crc32` follow. For spec edits that change
+    /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
+    #[arg(long, conflicts_with_all = ["weights", "random_init"])]
+    pub restamp: Option<std::path::PathBuf>,
+}
+
+/// `quantise --restamp DIR`: the blob of `DIR` carrying the current spec's CRC.
+pub fn restamp(dir: &std::path::Path, out: &mut impl std::io::Write) -> Result<()> {
+    let path = dir.join(BLOB_FILE);
+    let mut blob = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    ensure!(blob.len() >= 28, "{}: too short for a blob", path.display());
+    let old = u32::from_le_bytes([blob[12], blob[13], blob[14], blob[15]]);
+    // The blob must be intact for the spec it names before anything is re-stamped.
+    epssn::blob::Blob::parse(&blob, old)
+        .map_err(|e| anyhow!("{}: not a valid blob: {e:?}", path.display()))?;
+    blob[12..16].copy_from_slice(&config::SPEC_HASH.to_le_bytes());
+    let body = blob.len() - 4;
+    let crc = epssn::crc32::crc32(&blob[..body]);
+    blob[body..].copy_from_slice(&crc.to_le_bytes());
+    epssn::model::Model::from_blob(&blob)
+        .map_err(|e| anyhow!("the re-stamped blob is refused: {e:?}"))?;
+    std::fs::write(&path, &blob).with_context(|| format!("writing {}", path.display()))?;
+    let qpath = dir.join("quantisation.json");
+    if let Ok(text) = std::fs::read_to_string(&qpath) {
+        let mut j: serde_json::Value = serde_json::from_str(&text)?;
+        j["spec_hash"] = format!("{:#010x}", config::SPEC_HASH).into();
+        if j.get("blob_crc32").is_some() {
+            j["blob_crc32"] = format!("{crc:#010x}").into();
+        }
+        std::fs::write(&qpath, serde_json::to_string_pretty(&j)? + "\n")?;
+    }
+    writeln!(
+        out,
+        "re-stamped {}: spec {:#010x} -> {:#010x}, blob CRC {crc:#010x}",
+        path.display(),
+        old,
+        config::SPEC_HASH
+    )?;
+    Ok(())
 }
 
 /// Candidate percentiles of the per-tensor search.
@@ -369,6 +410,9 @@ pub fn trained_views(dir: &std::path::Path) -> Result<usize> {
 
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
+    if let Some(dir) = &args.restamp {
+        return restamp(dir, out);
+    }
     let n = args.calibration_samples.max(1);
     let (weights, traces, samples, mut source, dir) = match (&args.weights, args.random_init) {
         (Some(dir), None) => {

@@ -322,6 +322,7 @@ impl Campaign<'_> {
                         sources: [1u32].into_iter().collect(),
                         instructions: 1,
                         depth: link::DepthData::Bytes(&depth),
+                        pair: None,
                     },
                 };
                 v = msg_bytes(&msg);

@@ -147,6 +147,11 @@ pub struct SilReport {
     pub instructions: Vec<u32>,
     /// `(reference, sources)` frame sequence numbers of each depth map.
     pub pairs: Vec<(u32, Vec<u32>)>,
+    /// `(reference, source, reason)` of each candidate pair the device's pose gate rejected
+    /// (docs/POSE.md).
+    pub rejected_pairs: Vec<(u32, u32, String)>,
+    /// The host library rejected exactly the same pairs for the same reasons.
+    pub rejections_agree: bool,
     /// Flash: .vector_table + .text + .rodata + .data.
     pub flash_bytes: u64,
     /// RAM: .data + .bss + .uninit + stack high-water mark.
@@ -250,6 +255,10 @@ pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
 /// One frame prepared on the host: the link message's content and the expected reply.
 struct HostFrame {
     roll_deg: f32,
+    /// The header's attitude (docs/POSE.md), sent with the frame.
+    attitude: Option<epssn::attitude::Attitude>,
+    /// The host gate's rejection, when the frame forms a candidate pair it refuses.
+    rejected: Option<epssn::pairing::PairCheck>,
     image: Vec<u8>,
     /// `(reference, sources, depth bits)` when the frame completes a view set.
     expected: Option<(u32, Vec<u32>, Vec<u32>)>,
@@ -290,10 +299,13 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
         };
         let image = frame_to_polar(&frame)?;
         let seq = i as u32 + 1;
+        let attitude = h.attitude().and_then(epssn::attitude::Attitude::from_array);
         let newest = cache
-            .insert(seq, roll, |f| model.features(&image, &mut ws, f))
+            .insert_with_attitude(seq, roll, attitude, |f| model.features(&image, &mut ws, f))
             .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
-        let expected = match cache.find(&newest, config::VIEWS) {
+        let found = cache.find_checked(&newest, config::VIEWS);
+        let rejected = found.as_ref().and_then(|r| r.as_ref().err()).copied();
+        let expected = match found.and_then(|r| r.ok()) {
             Some(set) => {
                 let reference = set.reference().context("empty view set")?;
                 // Frame seq s is frame s − 1 of the recording: this one or one already pushed.
@@ -323,6 +335,8 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
         };
         out.push(HostFrame {
             roll_deg: roll,
+            attitude,
+            rejected,
             image,
             expected,
         });
@@ -743,6 +757,10 @@ struct Streamed {
     pairs_ok: bool,
     instructions: Vec<u32>,
     pairs: Vec<(u32, Vec<u32>)>,
+    /// `(reference, source, reason)` of each pair the device's gate rejected.
+    rejected: Vec<(u32, u32, String)>,
+    /// Every device rejection equals the host's (pair and reason), and there are no others.
+    rejections_agree: bool,
 }
 
 /// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
@@ -753,11 +771,14 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
     let mut pairs_ok = true;
     let mut instructions = Vec::new();
     let mut pairs = Vec::new();
+    let mut rejected = Vec::new();
+    let mut rejections_agree = true;
     for (i, f) in frames.iter().enumerate() {
         *seq += 1;
         device.send_msg(&Message::Frame {
             seq: *seq,
             roll_deg: f.roll_deg,
+            attitude: f.attitude,
             image: &f.image,
         })?;
         match (device.reply()?, &f.expected) {
@@ -777,7 +798,15 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
                     + bits.len().abs_diff(ebits.len());
                 pairs.push((reference, sources));
             }
-            (Reply::Status(_), None) => {}
+            (Reply::Status(st), None) => {
+                // The device's verdict on the candidate this frame formed, against the host's.
+                let device = st.pair.filter(|p| !p.verdict.accepted());
+                let key = |p: &epssn::pairing::PairCheck| (p.reference, p.source, p.verdict);
+                rejections_agree &= device.as_ref().map(key) == f.rejected.as_ref().map(key);
+                if let Some(p) = device {
+                    rejected.push((p.reference, p.source, p.verdict.reason().to_string()));
+                }
+            }
             (r, e) => bail!(
                 "frame {i}: reply {:?} but the host expected {}",
                 match r {
@@ -799,6 +828,8 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
         pairs_ok,
         instructions,
         pairs,
+        rejected,
+        rejections_agree,
     })
 }
 
@@ -887,6 +918,8 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         pairs_ok,
         instructions,
         pairs,
+        rejected,
+        rejections_agree,
     } = stream(&mut device, &frames, &mut seq)?;
     let fuzz_report = if args.fuzz > 0 {
         Some(fuzz(
@@ -983,6 +1016,8 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         instructions_per_depth_map: mean,
         instructions,
         pairs,
+        rejected_pairs: rejected,
+        rejections_agree,
         flash_bytes: flash,
         ram_bytes: ram,
         static_ram_bytes: static_ram,
@@ -1002,7 +1037,8 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     })
 }
 
-/// `host-sim sil`: prints the report; fails unless bit-exact and alive.
+/// `host-sim sil`: prints the report; fails unless bit-exact, with the host's pair
+/// rejections, and alive.
 pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
     let r = sil(args)?;
     if args.json {
@@ -1016,6 +1052,11 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
             r.frames, r.depth_maps, r.expected_depth_maps, r.bit_exact, r.mismatched_values
         )?;
         writeln!(out, "pairs (reference, sources): {:?}", r.pairs)?;
+        writeln!(
+            out,
+            "pairs the pose gate rejected (reference, source, reason): {:?}; same as the host: {}",
+            r.rejected_pairs, r.rejections_agree
+        )?;
         writeln!(
             out,
             "{} per depth map (features of the new frame + depth map): {} (each: {:?})",
@@ -1109,6 +1150,9 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
     }
     if !r.bit_exact {
         bail!("SIL: depth maps are not bit-exact with the host library");
+    }
+    if !r.rejections_agree {
+        bail!("SIL: the device's pose gate rejected other pairs than the host library's");
     }
     if let Some(f) = &r.faults {
         if f.failed > 0 {

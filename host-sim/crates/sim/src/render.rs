@@ -106,6 +106,18 @@ impl SonarSimParams {
 /// The ARIS 3000 frame header of a simulated view: the recording geometry of `params` and the
 /// view's roll in SonarRoll, TargetRoll and RollAbsPosition.
 pub fn frame_header(params: &SonarSimParams, roll_deg: f64) -> anyhow::Result<FrameHeader> {
+    frame_header_posed(params, roll_deg, [0.0, 0.0])
+}
+
+/// [`frame_header`] with the view's true pose error `[pitch, yaw]` (degrees, docs/POSE.md)
+/// written as the platform's Pitch and Heading (the reference view's platform frame is the
+/// level frame, so the reference has heading 0 and pitch 0).
+pub fn frame_header_posed(
+    params: &SonarSimParams,
+    roll_deg: f64,
+    pose_error_deg: [f64; 2],
+) -> anyhow::Result<FrameHeader> {
+    let [pitch, yaw] = pose_error_deg;
     Ok(FrameHeader::new_aris3000(
         config::BEAMS,
         params.samples_per_beam,
@@ -113,7 +125,8 @@ pub fn frame_header(params: &SonarSimParams, roll_deg: f64) -> anyhow::Result<Fr
         params.sample_start_delay_us,
         params.sound_speed_m_s as f32,
     )?
-    .with_roll_deg(roll_deg as f32))
+    .with_roll_deg(roll_deg as f32)
+    .with_platform_attitude_deg(yaw.rem_euclid(360.0) as f32, pitch as f32, 0.0))
 }
 
 /// Beam centres of the ARIS3000_128 table, radians, beam 0 (right-most) first.

@@ -211,14 +211,29 @@ pub struct Scene {
     pub sonar: SonarPose,
     /// Roll of each view about the forward axis, degrees (view 0 = reference = 0).
     pub view_rolls_deg: Vec<f64>,
+    /// Pose error of each view, `[pitch, yaw]` degrees (docs/POSE.md's convention): view `k`'s
+    /// attitude in the reference frame is `Rz(−yaw) · Ry(−pitch) · Rx(roll)` instead of the
+    /// pure roll. Empty (the default, and every scene before `--pose-jitter-deg`) = none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub view_pose_errors_deg: Vec<[f64; 2]>,
     /// The objects.
     pub objects: Vec<Object>,
 }
 
 impl Scene {
-    /// Reference frame → frame of view `k` (the geometry module's roll convention).
+    /// Reference frame → frame of view `k` (the geometry module's roll convention), with the
+    /// view's pose error if it has one.
     pub fn view_from_reference(&self, k: usize) -> RigidTransform {
-        RigidTransform::roll_deg(self.view_rolls_deg.get(k).copied().unwrap_or(0.0))
+        let roll = RigidTransform::roll_deg(self.view_rolls_deg.get(k).copied().unwrap_or(0.0));
+        match self.view_pose_errors_deg.get(k) {
+            Some(&[pitch, yaw]) if pitch != 0.0 || yaw != 0.0 => {
+                // reference ← view = E · Rx(roll) with E = Rz(−yaw) · Ry(−pitch); its inverse
+                // is view ← reference = Rx(−roll) · Eᵀ = roll_deg(roll) · Eᵀ.
+                let e = pose_error_rotation(pitch, yaw);
+                roll.compose(&e.inverse())
+            }
+            _ => roll,
+        }
     }
 
     /// Frame of view `k` → world.
@@ -236,6 +251,26 @@ impl Scene {
             } => Some((*center_m, *radius_m)),
             _ => None,
         })
+    }
+}
+
+/// The pose error `E = Rz(−yaw) · Ry(−pitch)` of docs/POSE.md (x forward, y left, z up:
+/// a positive pitch raises the forward axis, a positive yaw turns it to the right, as the ARIS
+/// header's Pitch and Heading count).
+pub fn pose_error_rotation(pitch_deg: f64, yaw_deg: f64) -> RigidTransform {
+    let (sp, cp) = (-deg_to_rad(pitch_deg)).sin_cos();
+    let (sy, cy) = (-deg_to_rad(yaw_deg)).sin_cos();
+    let rz = [[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]];
+    let ry = [[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]];
+    let mut rot = [[0.0; 3]; 3];
+    for (i, row) in rot.iter_mut().enumerate() {
+        for (j, cell) in row.iter_mut().enumerate() {
+            *cell = (0..3).map(|k| rz[i][k] * ry[k][j]).sum();
+        }
+    }
+    RigidTransform {
+        rotation: rot,
+        translation: [0.0; 3],
     }
 }
 
@@ -285,6 +320,7 @@ pub fn generate(kind: SceneKind, split: Split, seed: u64, index: u64, views: usi
         view_rolls_deg: (0..views)
             .map(|k| config::ROLL_STEP_DEG * k as f64)
             .collect(),
+        view_pose_errors_deg: Vec::new(),
         objects,
     }
 }
@@ -1134,6 +1170,7 @@ mod tests {
             sample_seed: 0,
             sonar: SonarPose::IDENTITY,
             view_rolls_deg: vec![0.0],
+            view_pose_errors_deg: Vec::new(),
             objects: vec![Object::Terrain(spec.clone())],
         })
         .solids[0]

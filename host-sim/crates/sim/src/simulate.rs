@@ -20,7 +20,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
 use crate::groundtruth::{elevation_map, front_depth, polar_image};
-use crate::render::{frame_header, render_view, SonarSimParams};
+use crate::render::{frame_header_posed, render_view, SonarSimParams};
 use crate::scene::{generate, Scene, SceneKind, Split, World};
 use epssn_aris::aris::write_recording;
 
@@ -72,9 +72,15 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
 }
 
 /// Writes one frame as a one-frame ARIS 3000 recording with the view's roll in SonarRoll and
-/// RollAbsPosition.
-pub fn write_aris(path: &Path, frame: &[u8], roll_deg: f64, params: &SonarSimParams) -> Result<()> {
-    let header = frame_header(params, roll_deg)?;
+/// RollAbsPosition and its pose error `[pitch, yaw]` as the platform's Pitch and Heading.
+pub fn write_aris(
+    path: &Path,
+    frame: &[u8],
+    roll_deg: f64,
+    pose_error_deg: [f64; 2],
+    params: &SonarSimParams,
+) -> Result<()> {
+    let header = frame_header_posed(params, roll_deg, pose_error_deg)?;
     write_recording(path, &[(&header, frame)])?;
     Ok(())
 }
@@ -96,6 +102,11 @@ pub fn write_sample(
             &dir.join(format!("view{k}.aris")),
             frame,
             s.scene.view_rolls_deg[k],
+            s.scene
+                .view_pose_errors_deg
+                .get(k)
+                .copied()
+                .unwrap_or([0.0, 0.0]),
             params,
         )?;
     }
@@ -156,6 +167,60 @@ pub struct SimulateArgs {
     /// SonarSimParams as JSON (missing fields keep their defaults); default: the defaults.
     #[arg(long)]
     pub params: Option<PathBuf>,
+    /// Tilt every source view's forward axis by exactly this many degrees in a random
+    /// direction (pitch = D·cos φ, yaw = D·sin φ, φ uniform per view from the sample's seed):
+    /// rendered so, and written into the view's frame header and `scene.json` (docs/POSE.md).
+    #[arg(long, default_value_t = 0.0)]
+    pub pose_jitter_deg: f64,
+    /// Which axes the pose error turns: both (a random direction), or only pitch or only yaw
+    /// (the sign random), to tell their effects apart.
+    #[arg(long, value_enum, default_value_t = JitterAxes::Both)]
+    pub pose_jitter_axes: JitterAxes,
+}
+
+/// Axes of `--pose-jitter-deg`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum JitterAxes {
+    /// Pitch and yaw, direction uniform.
+    Both,
+    /// Pitch only.
+    Pitch,
+    /// Yaw only.
+    Yaw,
+}
+
+/// Adds `jitter_deg` of pose error about `axes` to every source view of `scene` (none when 0).
+pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
+    if jitter_deg == 0.0 {
+        return;
+    }
+    use rand::{RngExt, SeedableRng};
+    // A stream of its own, so the scene and the rendering noise stay those of the unjittered
+    // sample: only the pose differs between jitter levels.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(crate::scene::mix64(
+        scene.sample_seed ^ 0x706f_7365_0000_0000,
+    ));
+    scene.view_pose_errors_deg = (0..scene.view_rolls_deg.len())
+        .map(|k| {
+            let mut phi = std::f64::consts::TAU * rng.random::<f64>();
+            // One axis: the same draw picks the sign.
+            let half = if phi.cos() >= 0.0 {
+                0.0
+            } else {
+                std::f64::consts::PI
+            };
+            match axes {
+                JitterAxes::Both => {}
+                JitterAxes::Pitch => phi = half,
+                JitterAxes::Yaw => phi = half + std::f64::consts::FRAC_PI_2,
+            }
+            if k == 0 {
+                [0.0, 0.0]
+            } else {
+                [jitter_deg * phi.cos(), jitter_deg * phi.sin()]
+            }
+        })
+        .collect();
 }
 
 /// Runs `host-sim simulate`.
@@ -172,6 +237,10 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         .with_context(|| format!("parsing {}", p.display()))?,
         None => SonarSimParams::default(),
     };
+    ensure!(
+        args.pose_jitter_deg.is_finite() && (0.0..=30.0).contains(&args.pose_jitter_deg),
+        "--pose-jitter-deg must be within 0..=30"
+    );
     ensure!(
         params.samples_per_beam > 0 && params.sample_period_us > 0,
         "sim params: samples_per_beam and sample_period_us must be positive"
@@ -193,7 +262,8 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     (0..pairs as u64)
         .into_par_iter()
         .try_for_each(|i| -> Result<()> {
-            let scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
+            let mut scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
+            jitter_pose(&mut scene, args.pose_jitter_deg, args.pose_jitter_axes);
             let data = simulate_scene(&scene, &params)?;
             write_sample(
                 &sample_dir(&args.out, args.split, i),

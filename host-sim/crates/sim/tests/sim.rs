@@ -65,6 +65,18 @@ fn check_sphere_sample(s: &Sample) -> usize {
 }
 
 fn simulate(out: &Path, scene: SceneKind, pairs: usize, seed: u64, split: Split, preview: bool) {
+    simulate_jittered(out, scene, pairs, seed, split, preview, 0.0);
+}
+
+fn simulate_jittered(
+    out: &Path,
+    scene: SceneKind,
+    pairs: usize,
+    seed: u64,
+    split: Split,
+    preview: bool,
+    jitter: f64,
+) {
     run(&SimulateArgs {
         scene,
         pairs: Some(pairs),
@@ -74,8 +86,52 @@ fn simulate(out: &Path, scene: SceneKind, pairs: usize, seed: u64, split: Split,
         views: 2,
         no_preview: !preview,
         params: None,
+        pose_jitter_deg: jitter,
+        pose_jitter_axes: epssn_sim::simulate::JitterAxes::Both,
     })
     .unwrap();
+}
+
+#[test]
+fn pose_jitter_is_rendered_and_recorded_in_the_headers() {
+    use epssn::attitude::Attitude;
+    use epssn_aris::aris::ArisReader;
+    let plain = tempfile::tempdir().unwrap();
+    let jittered = tempfile::tempdir().unwrap();
+    simulate(plain.path(), SceneKind::Terrain, 3, 5, Split::Test, false);
+    simulate_jittered(
+        jittered.path(),
+        SceneKind::Terrain,
+        3,
+        5,
+        Split::Test,
+        false,
+        0.5,
+    );
+    let attitude = |dir: &Path, k: usize| {
+        let r = ArisReader::open(dir.join(format!("view{k}.aris"))).unwrap();
+        Attitude::from_array(r.frame_header(0).unwrap().attitude().unwrap()).unwrap()
+    };
+    for (p, j) in sample_dirs(plain.path(), Split::Test)
+        .unwrap()
+        .iter()
+        .zip(sample_dirs(jittered.path(), Split::Test).unwrap())
+    {
+        let (sp, sj) = (Sample::load(p).unwrap(), Sample::load(&j).unwrap());
+        // Only the pose differs: the same terrain, the same reference image and labels.
+        assert_eq!(sp.scene.objects, sj.scene.objects);
+        assert_eq!(sp.polar_views[0], sj.polar_views[0]);
+        assert_eq!(sp.depth, sj.depth);
+        assert_ne!(sp.polar_views[1], sj.polar_views[1]);
+        let [pitch, yaw] = sj.scene.view_pose_errors_deg[1];
+        assert!(((pitch * pitch + yaw * yaw).sqrt() - 0.5).abs() < 1e-9);
+        // The headers' attitudes give the baseline roll and the jitter as the residual.
+        let rel = attitude(&j, 0).relative(&attitude(&j, 1));
+        assert!((rel.roll_deg - 7.0).abs() < 0.01, "{rel:?}");
+        assert!((rel.residual_deg - 0.5).abs() < 0.01, "{rel:?}");
+        let rel = attitude(p, 0).relative(&attitude(p, 1));
+        assert!(rel.residual_deg < 1e-4 && (rel.roll_deg - 7.0).abs() < 1e-4);
+    }
 }
 
 #[test]
@@ -378,6 +434,7 @@ fn elevation_map_puts_floor_returns_on_the_floor() {
             tilt_deg: 20.0,
         },
         view_rolls_deg: vec![0.0, 7.0],
+        view_pose_errors_deg: Vec::new(),
         objects: vec![epssn_sim::scene::Object::Plane {
             name: "floor".into(),
             point_m: [0.0; 3],
