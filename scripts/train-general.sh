@@ -6,7 +6,8 @@
 # WEIGHTS=weights/paper trains into another folder; for another spec the binary must be built
 # from it (EPSSN_SPEC, docs/PAPER.md), as must the data (the simulator draws the spec's grid).
 # SEARCH_PASSES (default 2) sets the quantiser's search passes; INIT_FROM=weights/general starts
-# from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random.
+# from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random;
+# LR sets the learning rate before its halving (default: the spec's), e.g. to fine-tune.
 # Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
 # does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
 # the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
@@ -47,7 +48,7 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 # --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
-  --val-limit $((3 * val_n)) --resume --out "$weights" ${INIT_FROM:+--init-from "$INIT_FROM"}
+  --val-limit $((3 * val_n)) --resume --out "$weights" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples 64 --percentile 99.99 \
   --search --search-passes "$passes"
 for scene in "${scenes[@]}"; do

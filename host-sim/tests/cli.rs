@@ -98,3 +98,48 @@ fn cli_simulate_three_views_and_metrics_json() {
         .unwrap();
     assert!(!st.success());
 }
+
+#[test]
+fn cli_train_takes_a_learning_rate_and_records_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_host-sim");
+    let data = dir.path().join("data");
+    let st = std::process::Command::new(exe)
+        .args([
+            "simulate", "--scene", "sphere", "--pairs", "2", "--seed", "3",
+        ])
+        .args(["--split", "train", "--no-preview", "--out"])
+        .arg(&data)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let train = |lr: &str, out: &Path| {
+        std::process::Command::new(exe)
+            // The default spec path is relative to the repository's root.
+            .current_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join(".."))
+            .args([
+                "train", "--scene", "sphere", "--epochs", "1", "--batch", "2",
+            ])
+            .arg("--data")
+            .arg(&data)
+            .args(["--lr", lr, "--out"])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    // A rate that is not a positive number is refused before anything is written.
+    let bad = dir.path().join("bad");
+    let o = train("0", &bad);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--lr must be a positive number"), "{err}");
+    assert!(!bad.exists());
+    // The rate given is the rate used and recorded.
+    let good = dir.path().join("good");
+    let o = train("0.0005", &good);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(good.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["lr"], 0.0005);
+    assert_eq!(manifest["steps"], 1);
+}

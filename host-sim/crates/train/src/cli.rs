@@ -65,6 +65,11 @@ pub struct TrainArgs {
     /// from a checkpoint.
     #[arg(long, conflicts_with = "bench_steps")]
     pub init_from: Option<PathBuf>,
+    /// Learning rate before the halving (default: the spec's `training.lr`). A lower rate
+    /// fine-tunes a trained model (`--init-from`) without first undoing it; the manifest records
+    /// the rate used, and a resumed run must pass the same one.
+    #[arg(long)]
+    pub lr: Option<f64>,
 }
 
 /// Arguments of `host-sim eval`.
@@ -124,6 +129,9 @@ struct TrainState {
     batch: usize,
     epochs: usize,
     views: usize,
+    /// The learning rate before the halving; absent in checkpoints written before `--lr`.
+    #[serde(default)]
+    lr: Option<f64>,
 }
 
 fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
@@ -200,6 +208,7 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
         batch,
         epochs: epoch,
         views,
+        lr: None,
     })
 }
 
@@ -262,7 +271,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     // A last batch of one sample would break batch norm; it is dropped.
     let steps_per_epoch = n / batch + usize::from(n % batch >= 2);
     let total = args.epochs * steps_per_epoch;
-    let lr = spec.training.lr;
+    let lr = args.lr.unwrap_or(spec.training.lr);
+    ensure!(
+        lr.is_finite() && lr > 0.0,
+        "--lr must be a positive number, not {lr}"
+    );
     let frac = spec.training.lr_halved_at_fraction;
 
     if let Some(steps) = args.bench_steps {
@@ -280,6 +293,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             state.batch,
             state.views
         );
+        let ckpt_lr = state.lr.unwrap_or(spec.training.lr);
+        ensure!(
+            ckpt_lr == lr,
+            "checkpoint was made with --lr {ckpt_lr}: pass the same rate"
+        );
         let tensors = load_safetensors(&ckpt.join(WEIGHTS_FILE))?;
         let t = Trainer::from_checkpoint(&spec, &tensors, Some(&ckpt.join("optim.bpk")), views)?;
         eprintln!(
@@ -290,6 +308,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             t,
             TrainState {
                 epochs: args.epochs,
+                lr: Some(lr),
                 ..state
             },
         )
@@ -309,6 +328,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             t,
             TrainState {
                 epochs: args.epochs,
+                lr: Some(lr),
                 ..state
             },
         )
@@ -337,6 +357,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             batch,
             epochs: args.epochs,
             views,
+            lr: Some(lr),
         };
         (t, s)
     };
