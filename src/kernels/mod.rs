@@ -177,9 +177,13 @@ pub struct ConvShape {
     pub out_size: [usize; 3],
 }
 
-impl From<&LayerShape> for ConvShape {
-    fn from(l: &LayerShape) -> Self {
-        let u = |a: [u8; 3]| [a[0] as usize, a[1] as usize, a[2] as usize];
+impl ConvShape {
+    /// The shape of a compiled layer; a const fn, so that the kernels can size their buffers
+    /// from the layers at compile time.
+    pub const fn of(l: &LayerShape) -> Self {
+        const fn u(a: [u8; 3]) -> [usize; 3] {
+            [a[0] as usize, a[1] as usize, a[2] as usize]
+        }
         ConvShape {
             in_channels: l.in_channels,
             out_channels: l.out_channels,
@@ -190,6 +194,12 @@ impl From<&LayerShape> for ConvShape {
             in_size: l.in_size,
             out_size: l.out_size,
         }
+    }
+}
+
+impl From<&LayerShape> for ConvShape {
+    fn from(l: &LayerShape) -> Self {
+        Self::of(l)
     }
 }
 
