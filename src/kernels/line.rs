@@ -260,8 +260,9 @@ pub struct LineScratch {
     kept: KeptWeights,
 }
 
-/// Weights address and length, kernel, stride, input and output channels.
-type WeightsKey = (usize, usize, [usize; 3], [usize; 3], usize, usize);
+/// The model's layer index ([`super::CheckedParams`]), kernel, stride, input and output
+/// channels.
+type WeightsKey = (usize, [usize; 3], [usize; 3], usize, usize);
 
 /// Which transposed-convolution weights `wbuf` still holds, while the caller allows keeping
 /// them ([`LineScratch::keep_weights`]).
@@ -294,11 +295,14 @@ impl LineScratch {
         }
     }
 
-    /// From now on, a transposed convolution whose weights (same slice, kernel, stride and
-    /// channels) were laid out by an earlier call skips laying them out again, as long as
-    /// they fit the weight buffer beside each other phase by phase. For a caller that runs
-    /// one layer many times in pieces (the streamed model's u0, a plane per call): the
-    /// weights must not change until [`LineScratch::forget_weights`].
+    /// From now on, a transposed convolution of a model layer whose weights (same layer,
+    /// kernel, stride and channels) were laid out by an earlier call skips laying them out
+    /// again, as long as they fit the weight buffer beside each other phase by phase. For the
+    /// model, which runs one layer many times in pieces (the streamed u0, a plane per call):
+    /// the layer is identified by its index in the model ([`super::CheckedParams`] carry it),
+    /// not by the weights' address, which other weights could occupy later; parameters not
+    /// from a model are never kept. The model's weights must not change until
+    /// [`LineScratch::forget_weights`].
     pub fn keep_weights(&mut self) {
         self.kept = KeptWeights {
             on: true,
@@ -676,11 +680,15 @@ pub(crate) const fn layers_line_words(layers: &[LayerShape]) -> usize {
 /// phase by phase: outputs with the same `(z + pad) mod stride` on every axis use the same
 /// taps, and along a row of one phase output `bx` reads input columns `bx − c`, a window
 /// of the line buffer like a forward convolution's. The `sw` x phases of a (plane, row)
-/// read the same input rows, so they share one line fill.
+/// read the same input rows, so they share one line fill. `layer`: the model's index of the
+/// layer `params` belong to, under which their laid-out weights may be kept
+/// ([`LineScratch::keep_weights`]); `None` lays them out at every call.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn transposed<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
+    layer: Option<usize>,
     rq: &[R],
     skip: SkipLut<'_>,
     output: &mut [i8],
@@ -716,18 +724,12 @@ pub(crate) fn transposed<R: Apply>(
     };
     // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
     let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
-    let key = (
-        params.weights.as_ptr() as usize,
-        params.weights.len(),
-        shape.kernel,
-        shape.stride,
-        ic,
-        oc,
-    );
+    let key = layer.map(|l| (l, shape.kernel, shape.stride, ic, oc));
     let kept = &mut scratch.kept;
-    let keep = kept.on && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
-    if !keep || kept.key != Some(key) {
-        kept.key = keep.then_some(key);
+    let keep =
+        kept.on && key.is_some() && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
+    if !keep || kept.key != key {
+        kept.key = if keep { key } else { None };
         kept.ready = 0;
     }
     let mut phase_base = 0;
@@ -871,11 +873,13 @@ pub(crate) fn transposed<R: Apply>(
 }
 
 /// [`transposed`] with the fast requantisation when `bound` allows it and the skip table.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn run_transposed(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
     bound: i64,
+    layer: Option<usize>,
     skip: &Skip<'_>,
     output: &mut [i8],
     scratch: &mut LineScratch,
@@ -883,9 +887,10 @@ pub(crate) fn run_transposed(
     let oc = shape.out_channels;
     let table = skip_table(skip);
     let lut = skip_lut(skip, &table);
-    match fast_requants(params.requant, bound) {
-        Some(f) => transposed(shape, input, params, &f[..oc], lut, output, scratch),
-        None => transposed(shape, input, params, params.requant, lut, output, scratch),
+    let (p, rq) = (params, params.requant);
+    match fast_requants(rq, bound) {
+        Some(f) => transposed(shape, input, p, layer, &f[..oc], lut, output, scratch),
+        None => transposed(shape, input, p, layer, rq, lut, output, scratch),
     }
 }
 
