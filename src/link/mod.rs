@@ -470,9 +470,14 @@ mod tests {
         let img = image(2);
         let mut big = frame_header(1);
         big.len = Some(MAX_PAYLOAD_LEN as u32 + 1);
+        // Twice the build's range bins: a geometry no spec of this build has.
+        let (r, b) = (
+            2 * config::INPUT_RANGE_BINS as u32,
+            config::INPUT_COLUMNS as u32,
+        );
         let mut geo = frame_header(1);
-        geo.r = Some(512);
-        geo.len = Some(512 * 64);
+        geo.r = Some(r);
+        geo.len = Some(r * b);
         let mut short = frame_header(1);
         short.len = Some(100);
         let unknown = Header {
@@ -487,11 +492,13 @@ mod tests {
         };
         status_len.len = Some(4);
         let cases = [
-            (raw(&big, &[]), DecodeError::Oversized { len: 16385 }),
             (
-                raw(&geo, &img),
-                DecodeError::WrongGeometry { r: 512, b: 64 },
+                raw(&big, &[]),
+                DecodeError::Oversized {
+                    len: MAX_PAYLOAD_LEN as u32 + 1,
+                },
             ),
+            (raw(&geo, &img), DecodeError::WrongGeometry { r, b }),
             (
                 raw(&short, &img[..100]),
                 DecodeError::BadLength {
