@@ -1,12 +1,14 @@
 //! The MPS2-AN500 peripherals the firmware uses (Arm CMSDK APB timer, UART and the FPGA LED
-//! register), the stack paint and the semihosting command line: the only place with raw
-//! register and memory access. A port to another board (an STM32H7 module, say) replaces
-//! this file: see `firmware/README.md`. The rest of the firmware sees the UART through
+//! register), its stack region and the semihosting command line: the only place with raw
+//! register and memory access (the stack paint itself is `epssn_selftest::Stack`, shared with
+//! the other boards). A port to another board (an STM32H7 module, say) replaces this file: see
+//! `firmware/README.md`. The rest of the firmware sees the UART through
 //! `embedded_io::{Read, Write, ReadReady}` and the LED through `embedded_hal::digital::OutputPin`.
 
 use core::ptr::{read_volatile, write_volatile};
 
 use embedded_hal::digital::{ErrorType, OutputPin};
+use epssn_selftest::Stack;
 
 /// CMSDK APB timer 0: a 32-bit down-counter clocked at the 25 MHz peripheral clock.
 const TIMER0: usize = 0x4000_0000;
@@ -142,56 +144,11 @@ impl embedded_io::Write for Uart0 {
     }
 }
 
-extern "C" {
-    /// Initial stack pointer (top of the stack), from cortex-m-rt's link.x.
-    static _stack_start: u32;
-    /// End of the static RAM sections; the stack's lower limit without flip-link.
-    static _stack_end: u32;
-}
-
-/// The stack region `[bottom, top)`: below the statics with cortex-m-rt's default layout,
-/// from the start of RAM up to the statics with flip-link (which moves the stack down).
-fn stack_region() -> (usize, usize) {
-    let top = core::ptr::addr_of!(_stack_start) as usize;
-    let end = core::ptr::addr_of!(_stack_end) as usize;
-    let bottom = if end < top { end } else { RAM_ORIGIN };
-    ((bottom + 3) & !3, top & !3)
-}
-
-const PAINT: u32 = 0xDEAD_C0DE;
-
-/// Paints the unused stack below the current stack pointer, for [`stack_high_water`].
-/// Call first thing in `main`.
-#[inline(never)]
-pub fn paint_stack() {
-    let (bottom, _) = stack_region();
-    // Leave a margin under this function's own frame.
-    let sp = cortex_m::register::msp::read() as usize & !3;
-    let end = sp.saturating_sub(64);
-    let mut addr = bottom;
-    while addr < end {
-        // SAFETY: [bottom, sp − 64) is stack memory below the live frames: nothing uses it
-        // yet and there are no interrupts; the addresses are word-aligned RAM.
-        unsafe { write_volatile(addr as *mut u32, PAINT) };
-        addr += 4;
-    }
-}
-
-/// Bytes of stack ever used since [`paint_stack`]: top minus the lowest overwritten word.
-pub fn stack_high_water() -> u32 {
-    let (bottom, top) = stack_region();
-    let mut addr = bottom;
-    // SAFETY: reads of word-aligned stack RAM below the live frames or within them.
-    while addr < top && unsafe { read_volatile(addr as *const u32) } == PAINT {
-        addr += 4;
-    }
-    (top - addr) as u32
-}
-
-/// Bytes of the stack region.
-pub fn stack_size() -> u32 {
-    let (bottom, top) = stack_region();
-    (top - bottom) as u32
+/// The stack, for its paint and high-water mark (the implementation every board shares).
+pub fn stack() -> Stack {
+    // SAFETY: RAM_ORIGIN is the origin of memory.x's RAM region, which cortex-m-rt (through
+    // flip-link) puts this image's stack in.
+    unsafe { Stack::new(RAM_ORIGIN) }
 }
 
 /// True when the semihosting command line (QEMU `-semihosting-config ...,arg=...`) has the

@@ -50,7 +50,8 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 fn main() -> ! {
     let mut log = |a: core::fmt::Arguments<'_>| hprintln!("{}", a);
     epssn_selftest::banner(&mut log);
-    board::paint_stack();
+    let stack = board::stack();
+    stack.paint();
     let clock = TickCounter::start();
     let ws = WORKSPACE.take();
     let cache = CACHE.take();
@@ -75,14 +76,14 @@ fn main() -> ! {
     );
     hprintln!(
         "stack high-water mark: {} of {} bytes",
-        board::stack_high_water(),
-        board::stack_size()
+        stack.high_water(),
+        stack.size()
     );
     if failures == 0 {
         hprintln!("self-test: PASS");
         if let (Ok(model), true) = (&model, board::command_line_has("serve")) {
             hprintln!("serving the link on UART0");
-            let high_water = board::stack_high_water;
+            let high_water = || stack.high_water();
             let mut server = epssn::server::Server::new(
                 model,
                 ws,

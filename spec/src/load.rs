@@ -164,10 +164,27 @@ pub fn per_spec_file(dir: &Path, name: &str, ext: &str, spec_file: &str) -> Path
 /// A name kept per configuration: `name` for the default spec, `name-<spec file stem>` for any
 /// other (the demo's ground truth: `gt/`, `gt-epssn-p/`).
 pub fn per_spec_name(name: &str, spec_file: &str) -> String {
-    if spec_file == DEFAULT_SPEC_FILE {
-        return name.into();
+    match non_default_stem(spec_file) {
+        None => name.into(),
+        Some(stem) => format!("{name}-{stem}"),
     }
-    format!("{name}-{}", spec_stem(spec_file))
+}
+
+/// A directory kept per configuration below `dir`: `dir` itself for the default spec,
+/// `dir/<spec file stem>` for any other. Cargo target directories: the firmware of EPSSN-S
+/// builds in `firmware/target`, EPSSN-P's in `firmware/target/epssn-p`, so neither build
+/// rebuilds the other's artefacts.
+pub fn per_spec_dir(dir: &Path, spec_file: &str) -> PathBuf {
+    match non_default_stem(spec_file) {
+        None => dir.to_path_buf(),
+        Some(stem) => dir.join(stem),
+    }
+}
+
+/// The stem that tells a configuration's files apart, `None` for the default spec (whose files
+/// keep the plain names): the one test of "default or not" behind the `per_spec_*` names.
+fn non_default_stem(spec_file: &str) -> Option<&str> {
+    (spec_file != DEFAULT_SPEC_FILE).then(|| spec_stem(spec_file))
 }
 
 /// A spec file's name without `.json`: `epssn-p` for `epssn-p.json`.
@@ -234,6 +251,16 @@ mod tests {
             per_spec_file(d, "memory", "x", "epssn-p.json"),
             d.join("memory-epssn-p.x")
         );
+    }
+
+    #[test]
+    fn per_spec_dirs_keep_the_default_dir_for_epssn_s() {
+        let d = Path::new("firmware/target");
+        assert_eq!(per_spec_dir(d, DEFAULT_SPEC_FILE), d);
+        assert_eq!(per_spec_dir(d, "epssn-p.json"), d.join("epssn-p"));
+        // The same rule as the names: the default keeps the plain one, others add the stem.
+        assert_eq!(per_spec_name("gt", DEFAULT_SPEC_FILE), "gt");
+        assert_eq!(per_spec_name("gt", "epssn-p.json"), "gt-epssn-p");
     }
 
     #[test]

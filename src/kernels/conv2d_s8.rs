@@ -101,6 +101,19 @@ pub fn conv2d_s8_checked(
     Ok(())
 }
 
+/// A 2D shape as the line engine runs it: axes [H, W, 1] as [1, H, W], so that the engine's
+/// rows run along W (same memory layout).
+pub(crate) const fn line_shape(shape: &ConvShape) -> ConvShape {
+    ConvShape {
+        kernel: [1, shape.kernel[0], shape.kernel[1]],
+        stride: [1, shape.stride[0], shape.stride[1]],
+        padding: [0, shape.padding[0], shape.padding[1]],
+        in_size: [1, shape.in_size[0], shape.in_size[1]],
+        out_size: [1, shape.out_size[0], shape.out_size[1]],
+        ..*shape
+    }
+}
+
 /// The optimised engines on a validated shape and verified parameters.
 fn engine(
     shape: &ConvShape,
@@ -110,15 +123,7 @@ fn engine(
     scratch: &mut LineScratch,
 ) {
     let (params, bound) = (checked.params(), checked.bound());
-    // Axes [H, W, 1] as [1, H, W]: the line engine's rows run along W (same memory layout).
-    let s3 = ConvShape {
-        kernel: [1, shape.kernel[0], shape.kernel[1]],
-        stride: [1, shape.stride[0], shape.stride[1]],
-        padding: [0, shape.padding[0], shape.padding[1]],
-        in_size: [1, shape.in_size[0], shape.in_size[1]],
-        out_size: [1, shape.out_size[0], shape.out_size[1]],
-        ..*shape
-    };
+    let s3 = line_shape(shape);
     if super::line::conv_fits(&s3) {
         super::line::run_conv(&s3, input, params, bound, output, scratch);
     } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {

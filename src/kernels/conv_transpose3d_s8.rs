@@ -162,7 +162,8 @@ fn engine(
 ) {
     let (params, bound) = (checked.params(), checked.bound());
     if super::line::transposed_fits(shape) {
-        super::line::run_transposed(shape, input, params, bound, &skip, output, scratch);
+        let layer = checked.layer();
+        super::line::run_transposed(shape, input, params, bound, layer, &skip, output, scratch);
     } else {
         taps_engine(shape, input, params, &skip, output);
     }
@@ -359,6 +360,55 @@ mod tests {
         };
         const { assert!(40 * 9 > super::super::line::MAX_V) };
         run_all(&shape, &mut Rng(77), true);
+    }
+
+    #[test]
+    fn kept_weights_follow_the_layer_not_the_address() {
+        // Other weights in the same memory (same address and length) under another layer
+        // index must be laid out again; parameters of no layer are never kept.
+        let shape = ConvShape::from(&config::LAYER_U1);
+        assert!(super::super::line::transposed_fits(&shape));
+        let mut rng = Rng(0x6b65);
+        let input = rng.i8s(shape.in_channels * shape.in_size.iter().product::<usize>());
+        let n = shape.out_channels * shape.out_size.iter().product::<usize>();
+        let (mut w, b, r) = params(&mut rng, &shape);
+        let (w2, _, _) = params(&mut rng, &shape);
+        let at = w.as_ptr();
+        let mut scratch = LineScratch::new();
+        scratch.keep_weights();
+        for (layer, weights) in [(Some(0), None), (Some(1), Some(&w2)), (None, None)] {
+            if let Some(other) = weights {
+                w.copy_from_slice(other);
+            } else {
+                w.iter_mut().for_each(|v| *v = v.wrapping_add(1));
+            }
+            assert_eq!(w.as_ptr(), at);
+            let p = ConvParams {
+                weights: &w,
+                bias: &b,
+                requant: &r,
+                input_offset: 0,
+                relu: true,
+            };
+            let bound = super::super::check_layer_bounds(&shape, &p, true).unwrap();
+            let checked = CheckedParams::verified(&shape, p, true, bound, layer);
+            let (mut a, mut o) = (vec![0i8; n], vec![0i8; n]);
+            conv_transpose3d_s8_plain(&shape, &input, &p, Skip::None, &mut a).unwrap();
+            // Twice: the second call of a layer reuses the kept layout.
+            for _ in 0..2 {
+                conv_transpose3d_s8_checked(
+                    &shape,
+                    &input,
+                    &checked,
+                    Skip::None,
+                    &mut o,
+                    &mut scratch,
+                )
+                .unwrap();
+                assert_eq!(a, o, "layer {layer:?}");
+            }
+        }
+        scratch.forget_weights();
     }
 
     #[test]

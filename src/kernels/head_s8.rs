@@ -35,15 +35,17 @@ use super::{
     check_conv_transpose, check_conv_transpose_shape, finish, mul3, CheckedParams, ConvParams,
     ConvShape, KernelError, Operand,
 };
+use crate::config::{LayerKind, LayerShape};
 use crate::requant::Apply;
 use fixed::types::U16F16;
 
 /// Most input range rows of the optimised kernel (its accumulator rows).
 pub const MAX_FAST_ROWS: usize = 128;
 /// Most words of the gathered inputs of one column position (`H` range rows of
-/// `Q · P · up4(C) / 2` words): 1024 for EPSSN-S (64 rows × 16), scaled with the range rows so
-/// that a longer configuration's head (EPSSN-P: 128 rows) takes the optimised kernel.
-pub const HEAD_COL_WORDS: usize = 1024 * crate::config::FEATURE_RANGE_BINS.div_ceil(64);
+/// `Q · P · up4(C) / 2` words): what the build's head needs, from its compiled shape
+/// ([`layers_head_col_words`]), so that it takes the optimised kernel (EPSSN-S: 64 rows × 16,
+/// EPSSN-P: 128 × 16). Exact, not rounded up: the buffer is on the stack at every step.
+pub const HEAD_COL_WORDS: usize = layers_head_col_words(&crate::config::LAYERS);
 /// Most words of the prepared weights (`Q` rotations × ray pairs × `kh` × two rays' words).
 pub const HEAD_W_WORDS: usize = 512;
 
@@ -380,7 +382,7 @@ fn step_plain(
 }
 
 /// `x` rounded up to a multiple of 4.
-fn up4(x: usize) -> usize {
+const fn up4(x: usize) -> usize {
     x.div_ceil(4) * 4
 }
 
@@ -401,6 +403,16 @@ struct Fast {
 
 /// The optimised kernel's sizes, if the shape suits it and fits its buffers.
 fn fast_sizes(shape: &ConvShape) -> Option<Fast> {
+    let (fast, w_words, col_words) = fast_layout(shape)?;
+    let fits =
+        w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS && shape.in_size[1] <= MAX_FAST_ROWS;
+    fits.then_some(fast)
+}
+
+/// The optimised kernel's sizes and the words of its prepared weights and of its gathered
+/// inputs, if the shape suits it (buffers not checked; `None` also where a size overflows).
+/// A const fn: [`HEAD_COL_WORDS`] is this evaluated over the compiled layers.
+const fn fast_layout(shape: &ConvShape) -> Option<(Fast, usize, usize)> {
     let [_, ih, _] = shape.in_size;
     let [_, kh, kw] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
@@ -410,23 +422,58 @@ fn fast_sizes(shape: &ConvShape) -> Option<Fast> {
     let planes = head_step_planes(shape);
     let cols = kw.div_ceil(sw);
     let vp = up4(shape.in_channels);
-    let n = cols.checked_mul(planes)?.checked_mul(vp / 2)?;
-    let rays = sd.checked_mul(sw)?;
+    // `?` is not available in const fns.
+    let Some(n) = cols.checked_mul(planes) else {
+        return None;
+    };
+    let Some(n) = n.checked_mul(vp / 2) else {
+        return None;
+    };
+    let Some(rays) = sd.checked_mul(sw) else {
+        return None;
+    };
     let pairs = rays.div_ceil(2);
-    let w_words = cols
-        .checked_mul(pairs)?
-        .checked_mul(kh)?
-        .checked_mul(2 * n)?;
-    let col_words = ih.checked_mul(n)?;
-    let fits = w_words <= HEAD_W_WORDS && col_words <= HEAD_COL_WORDS && ih <= MAX_FAST_ROWS;
-    fits.then_some(Fast {
+    let Some(w_words) = cols.checked_mul(pairs) else {
+        return None;
+    };
+    let Some(w_words) = w_words.checked_mul(kh) else {
+        return None;
+    };
+    let Some(w_words) = w_words.checked_mul(2 * n) else {
+        return None;
+    };
+    let Some(col_words) = ih.checked_mul(n) else {
+        return None;
+    };
+    let fast = Fast {
         planes,
         cols,
         vp,
         n,
         rays,
         pairs,
-    })
+    };
+    Some((fast, w_words, col_words))
+}
+
+/// The most gathered-input words (`H · Q · P · up4(C) / 2`, as the optimised kernel's fit
+/// check computes them) of any layer in `layers` that the head kernels take (transposed, one
+/// output channel) and whose shape suits the optimised kernel; 0 when none does.
+pub const fn layers_head_col_words(layers: &[LayerShape]) -> usize {
+    let mut most = 0;
+    let mut i = 0;
+    while i < layers.len() {
+        let l = &layers[i];
+        if matches!(l.kind, LayerKind::ConvTranspose3d) && l.out_channels == 1 {
+            if let Some((_, _, col_words)) = fast_layout(&ConvShape::of(l)) {
+                if col_words > most {
+                    most = col_words;
+                }
+            }
+        }
+        i += 1;
+    }
+    most
 }
 
 /// Runs every step `planes_of` gives (one, or all of them), optimised when the shape allows,
@@ -700,6 +747,21 @@ mod tests {
     use crate::config;
     use std::vec;
     use std::vec::Vec;
+
+    #[test]
+    fn head_col_words_come_from_the_head_layers_fit_formula() {
+        // The build's head (its last layer) takes the optimised kernel, and the gather buffer
+        // is exactly its `H` range rows of `Q · P · up4(C) / 2` words.
+        let head = ConvShape::of(&config::LAYERS[config::LAYER_COUNT - 1]);
+        let f = fast_sizes(&head).expect("the head takes the optimised kernel");
+        let q_p_c = head.kernel[2].div_ceil(head.stride[2])
+            * head.kernel[0].div_ceil(head.stride[0])
+            * up4(head.in_channels)
+            / 2;
+        assert_eq!(f.n, q_p_c);
+        assert_eq!(HEAD_COL_WORDS, head.in_size[1] * f.n);
+        assert_eq!(HEAD_COL_WORDS, layers_head_col_words(&config::LAYERS));
+    }
 
     /// The ring of step `t`: planes `t − P + 1 ..= t` of `input` (zeros outside `0..D`, which
     /// the kernels must not read anyway: filled with a pattern instead).

@@ -24,12 +24,16 @@
 //! 256-entry table of `MBQM(q_skip)`.
 
 use super::{ConvParams, ConvShape, Skip};
+use crate::config::{LayerKind, LayerShape};
 use crate::requant::{Apply, Requant};
 
-/// Words (two i16 entries each) of the line buffer: 1024 for EPSSN-S (d1's lines, 72 entries ×
-/// 17 columns, are the longest at 612 words), scaled with the feature map's width so that a
-/// wider configuration's layers (EPSSN-P's d1: 72 × 33) still take the engine.
-pub const LINE_WORDS: usize = 1024 * crate::config::FEATURE_COLUMNS.div_ceil(16);
+/// Words (two i16 entries each) of the line buffer: the most any layer of the build's spec
+/// needs ([`layers_line_words`], the fit formulas of [`conv_fits`] and [`transposed_fits`]
+/// over the compiled shapes), so every layer takes the engine; rounded up to whole 1024 words
+/// (4 KiB), the steps the scratch has been sized and budgeted in. EPSSN-S: d1's lines (72
+/// entries × 17 columns) are the longest at 612 words, its scratch stays at the 1024 it was
+/// measured with; EPSSN-P: d1's 72 × 33, 1188 words, 2048.
+pub const LINE_WORDS: usize = layers_line_words(&crate::config::LAYERS).div_ceil(1024) * 1024;
 /// Words (two i16 weights each) of the reordered weights of one call or phase.
 pub const WEIGHT_WORDS: usize = 3456;
 /// Most line entries per column (`v`, padded to a multiple of 4).
@@ -256,8 +260,9 @@ pub struct LineScratch {
     kept: KeptWeights,
 }
 
-/// Weights address and length, kernel, stride, input and output channels.
-type WeightsKey = (usize, usize, [usize; 3], [usize; 3], usize, usize);
+/// The model's layer index ([`super::CheckedParams`]), kernel, stride, input and output
+/// channels.
+type WeightsKey = (usize, [usize; 3], [usize; 3], usize, usize);
 
 /// Which transposed-convolution weights `wbuf` still holds, while the caller allows keeping
 /// them ([`LineScratch::keep_weights`]).
@@ -290,11 +295,14 @@ impl LineScratch {
         }
     }
 
-    /// From now on, a transposed convolution whose weights (same slice, kernel, stride and
-    /// channels) were laid out by an earlier call skips laying them out again, as long as
-    /// they fit the weight buffer beside each other phase by phase. For a caller that runs
-    /// one layer many times in pieces (the streamed model's u0, a plane per call): the
-    /// weights must not change until [`LineScratch::forget_weights`].
+    /// From now on, a transposed convolution of a model layer whose weights (same layer,
+    /// kernel, stride and channels) were laid out by an earlier call skips laying them out
+    /// again, as long as they fit the weight buffer beside each other phase by phase. For the
+    /// model, which runs one layer many times in pieces (the streamed u0, a plane per call):
+    /// the layer is identified by its index in the model ([`super::CheckedParams`] carry it),
+    /// not by the weights' address, which other weights could occupy later; parameters not
+    /// from a model are never kept. The model's weights must not change until
+    /// [`LineScratch::forget_weights`].
     pub fn keep_weights(&mut self) {
         self.kept = KeptWeights {
             on: true,
@@ -431,14 +439,42 @@ fn fill(
     }
 }
 
+/// Line words of a row of `cols` columns of `vp` entries (two i16 per word). This and the
+/// helpers below are the fit formulas, shared by the run-time fit checks and the const
+/// [`LINE_WORDS`]; the checks evaluate them in the order they always had (`vp` and the
+/// columns first), so the compiled kernels are unchanged.
+#[inline(always)]
+const fn line_words(vp: usize, cols: usize) -> usize {
+    vp * cols / 2
+}
+
+/// Line entries per column of a forward convolution, `v` = (input channel, plane tap, row
+/// tap), padded to a multiple of 4.
+#[inline(always)]
+const fn conv_v(shape: &ConvShape) -> usize {
+    let [kd, kh, _] = shape.kernel;
+    up4(shape.in_channels * kd * kh)
+}
+
+/// Input columns one output row of a forward convolution reads.
+#[inline(always)]
+const fn conv_cols(shape: &ConvShape) -> usize {
+    (shape.out_size[2] - 1) * shape.stride[2] + shape.kernel[2]
+}
+
+/// Line words a forward convolution fills per output row.
+pub(crate) const fn conv_line_words(shape: &ConvShape) -> usize {
+    line_words(conv_v(shape), conv_cols(shape))
+}
+
 /// Whether the forward convolution fits the engine's buffers.
 pub(crate) fn conv_fits(shape: &ConvShape) -> bool {
-    let [kd, kh, kw] = shape.kernel;
-    let vp = up4(shape.in_channels * kd * kh);
-    let cols = (shape.out_size[2] - 1) * shape.stride[2] + kw;
+    let kw = shape.kernel[2];
+    let vp = conv_v(shape);
+    let cols = conv_cols(shape);
     vp <= MAX_V
         && shape.in_size[2] <= MAX_ROW
-        && vp * cols / 2 <= LINE_WORDS
+        && line_words(vp, cols) <= LINE_WORDS
         && 2 * kw * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels.div_ceil(conv_group(kw * vp / 2)) <= MAX_GROUPS
         && shape.out_channels <= MAX_FAST_CHANNELS
@@ -584,34 +620,75 @@ pub(crate) fn phase_taps(k: usize, s: usize, f: usize) -> usize {
 
 /// Line columns the transposed engine needs at most: input columns `−(⌈kw/sw⌉ − 1)` to
 /// the last one any output reaches.
-fn transposed_cols(shape: &ConvShape) -> usize {
+const fn transposed_cols(shape: &ConvShape) -> usize {
     let (sw, pw) = (shape.stride[2], shape.padding[2]);
     (shape.out_size[2] - 1 + pw) / sw + shape.kernel[2].div_ceil(sw)
+}
+
+/// Line entries per column of a transposed convolution (phase 0 has the most taps), padded
+/// to a multiple of 4.
+const fn transposed_v(shape: &ConvShape) -> usize {
+    // One `div_ceil` call site (it is `#[track_caller]`) for both axes: their divide-by-zero
+    // panics share one location, which keeps `transposed_fits` compiled as tightly as before.
+    const fn taps(shape: &ConvShape, a: usize) -> usize {
+        shape.kernel[a].div_ceil(shape.stride[a])
+    }
+    up4(shape.in_channels * taps(shape, 0) * taps(shape, 1))
+}
+
+/// Line words a transposed convolution fills per (plane, row) of a phase.
+pub(crate) const fn transposed_line_words(shape: &ConvShape) -> usize {
+    line_words(transposed_v(shape), transposed_cols(shape))
 }
 
 /// Whether the transposed convolution fits the engine's buffers (phase 0 has the most taps;
 /// the x phases' weights, `kw` column taps in all, are held together).
 pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
-    let t = |a: usize| shape.kernel[a].div_ceil(shape.stride[a]);
-    let vp = up4(shape.in_channels * t(0) * t(1));
+    let vp = transposed_v(shape);
     vp <= MAX_V
         && shape.in_size[2] <= MAX_ROW
-        && vp * transposed_cols(shape) / 2 <= LINE_WORDS
+        && line_words(vp, transposed_cols(shape)) <= LINE_WORDS
         && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
         && shape.stride[2] <= MAX_STRIDE
         && shape.out_size[2] <= MAX_POSITIONS
 }
 
+/// The most line words ([`conv_line_words`], [`transposed_line_words`]) any layer of
+/// `layers` needs, each by the formula of the engine its kind runs on: 2D layers as
+/// [`super::conv2d_s8`] hands them to the engine, every transposed layer (the head too,
+/// though its kernel has its own buffers: an upper bound).
+pub(crate) const fn layers_line_words(layers: &[LayerShape]) -> usize {
+    let mut most = 0;
+    let mut i = 0;
+    while i < layers.len() {
+        let shape = ConvShape::of(&layers[i]);
+        let words = match layers[i].kind {
+            LayerKind::Conv2d => conv_line_words(&super::conv2d_s8::line_shape(&shape)),
+            LayerKind::Conv3d => conv_line_words(&shape),
+            LayerKind::ConvTranspose3d => transposed_line_words(&shape),
+        };
+        if words > most {
+            most = words;
+        }
+        i += 1;
+    }
+    most
+}
+
 /// Transposed convolution (validated shape that [`transposed_fits`]) in the gather form,
 /// phase by phase: outputs with the same `(z + pad) mod stride` on every axis use the same
 /// taps, and along a row of one phase output `bx` reads input columns `bx − c`, a window
 /// of the line buffer like a forward convolution's. The `sw` x phases of a (plane, row)
-/// read the same input rows, so they share one line fill.
+/// read the same input rows, so they share one line fill. `layer`: the model's index of the
+/// layer `params` belong to, under which their laid-out weights may be kept
+/// ([`LineScratch::keep_weights`]); `None` lays them out at every call.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn transposed<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
+    layer: Option<usize>,
     rq: &[R],
     skip: SkipLut<'_>,
     output: &mut [i8],
@@ -647,18 +724,12 @@ pub(crate) fn transposed<R: Apply>(
     };
     // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
     let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
-    let key = (
-        params.weights.as_ptr() as usize,
-        params.weights.len(),
-        shape.kernel,
-        shape.stride,
-        ic,
-        oc,
-    );
+    let key = layer.map(|l| (l, shape.kernel, shape.stride, ic, oc));
     let kept = &mut scratch.kept;
-    let keep = kept.on && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
-    if !keep || kept.key != Some(key) {
-        kept.key = keep.then_some(key);
+    let keep =
+        kept.on && key.is_some() && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
+    if !keep || kept.key != key {
+        kept.key = if keep { key } else { None };
         kept.ready = 0;
     }
     let mut phase_base = 0;
@@ -802,11 +873,13 @@ pub(crate) fn transposed<R: Apply>(
 }
 
 /// [`transposed`] with the fast requantisation when `bound` allows it and the skip table.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn run_transposed(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
     bound: i64,
+    layer: Option<usize>,
     skip: &Skip<'_>,
     output: &mut [i8],
     scratch: &mut LineScratch,
@@ -814,8 +887,40 @@ pub(crate) fn run_transposed(
     let oc = shape.out_channels;
     let table = skip_table(skip);
     let lut = skip_lut(skip, &table);
-    match fast_requants(params.requant, bound) {
-        Some(f) => transposed(shape, input, params, &f[..oc], lut, output, scratch),
-        None => transposed(shape, input, params, params.requant, lut, output, scratch),
+    let (p, rq) = (params, params.requant);
+    match fast_requants(rq, bound) {
+        Some(f) => transposed(shape, input, p, layer, &f[..oc], lut, output, scratch),
+        None => transposed(shape, input, p, layer, rq, lut, output, scratch),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config;
+
+    #[test]
+    fn line_words_come_from_the_layers_fit_formulas() {
+        // Every layer of the build's spec takes the engine its kind runs on (the head, the last
+        // layer, has its own kernel).
+        for l in &config::LAYERS[..config::LAYER_COUNT - 1] {
+            let shape = ConvShape::of(l);
+            let fits = match l.kind {
+                LayerKind::Conv2d => conv_fits(&super::super::conv2d_s8::line_shape(&shape)),
+                LayerKind::Conv3d => conv_fits(&shape),
+                LayerKind::ConvTranspose3d => transposed_fits(&shape),
+            };
+            assert!(fits, "{} does not take the line engine", l.name);
+        }
+        // The buffer is the longest lines rounded up to whole 1024 words, no more.
+        let need = layers_line_words(&config::LAYERS);
+        assert!(
+            need <= LINE_WORDS && LINE_WORDS < need + 1024,
+            "{need} {LINE_WORDS}"
+        );
+        // In EPSSN-S and EPSSN-P d1 has the longest lines (S: 612 words, so 1024 as measured).
+        let d1 = conv_line_words(&ConvShape::of(&config::LAYER_D1));
+        assert_eq!(need, d1);
+        assert_eq!(LINE_WORDS, d1.div_ceil(1024) * 1024);
     }
 }

@@ -177,9 +177,13 @@ pub struct ConvShape {
     pub out_size: [usize; 3],
 }
 
-impl From<&LayerShape> for ConvShape {
-    fn from(l: &LayerShape) -> Self {
-        let u = |a: [u8; 3]| [a[0] as usize, a[1] as usize, a[2] as usize];
+impl ConvShape {
+    /// The shape of a compiled layer; a const fn, so that the kernels can size their buffers
+    /// from the layers at compile time.
+    pub const fn of(l: &LayerShape) -> Self {
+        const fn u(a: [u8; 3]) -> [usize; 3] {
+            [a[0] as usize, a[1] as usize, a[2] as usize]
+        }
         ConvShape {
             in_channels: l.in_channels,
             out_channels: l.out_channels,
@@ -190,6 +194,12 @@ impl From<&LayerShape> for ConvShape {
             in_size: l.in_size,
             out_size: l.out_size,
         }
+    }
+}
+
+impl From<&LayerShape> for ConvShape {
+    fn from(l: &LayerShape) -> Self {
+        Self::of(l)
     }
 }
 
@@ -322,6 +332,11 @@ pub struct CheckedParams<'a> {
     kernel: [usize; 3],
     transposed: bool,
     bound: i64,
+    /// Which of the model's layers these are (its index), `None` for parameters a caller
+    /// verified ([`CheckedParams::new`]): the identity under which the line engine keeps
+    /// laid-out weights ([`LineScratch::keep_weights`]). An index into the model's immutable
+    /// layer table, unlike the weights' address, cannot stand for other weights.
+    layer: Option<usize>,
 }
 
 impl<'a> CheckedParams<'a> {
@@ -333,17 +348,19 @@ impl<'a> CheckedParams<'a> {
         transposed: bool,
     ) -> Result<Self, KernelError> {
         let bound = check_layer_bounds(shape, &params, transposed)?;
-        Ok(Self::verified(shape, params, transposed, bound))
+        Ok(Self::verified(shape, params, transposed, bound, None))
     }
 
     /// Parameters whose bound the caller has already established with
     /// [`check_layer_bounds`] on the same `params`, kernel, channels and direction (the
-    /// model does it once in `Model::from_blob`, and its parameters are immutable).
+    /// model does it once in `Model::from_blob`, and its parameters are immutable); `layer`:
+    /// the model's index of the layer, `None` for any other caller.
     pub(crate) fn verified(
         shape: &ConvShape,
         params: ConvParams<'a>,
         transposed: bool,
         bound: i64,
+        layer: Option<usize>,
     ) -> Self {
         Self {
             params,
@@ -352,7 +369,13 @@ impl<'a> CheckedParams<'a> {
             kernel: shape.kernel,
             transposed,
             bound,
+            layer,
         }
+    }
+
+    /// The model's index of the layer these parameters are, if they are one's.
+    pub(crate) fn layer(&self) -> Option<usize> {
+        self.layer
     }
 
     /// The parameters.

@@ -530,30 +530,38 @@ mod tests {
     fn equal_logits_give_the_middle_and_one_hot_gives_the_bin() {
         let exp = exp_table(0.2);
         let p = soft_params(&exp, 0);
+        // The build's bins: `soft_params` spreads them over the spec's range window.
+        let bins = config::DEPTH_RANGE_BINS;
         let shape = SoftArgmaxShape {
             rows: 1,
-            bins: 64,
+            bins,
             columns: 2,
         };
-        let mut logits = vec![-7i8; 128];
+        let mut logits = vec![-7i8; 2 * bins];
         // Column 1: one-hot at bin 10 with a gap of 255, where EXP underflows to 0.
-        for i in 0..64 {
+        for i in 0..bins {
             logits[i * 2 + 1] = -128;
         }
         logits[10 * 2 + 1] = 127;
         let mut d = vec![U16F16::ZERO; 2];
         soft_argmax_s8(&shape, &logits, &p, &mut d).unwrap();
         assert_eq!(exp[255], 0);
-        // Middle bin 31.5: r_min16 + (31.5·2^16·step16 + 2^15) >> 16.
+        // Middle bin (bins − 1) / 2: r_min16 + ((bins − 1)/2·2^16·step16 + 2^15) >> 16.
         let mid = p.r_min16.to_bits()
-            + ((63 * p.step16.to_bits() as u64 * (1 << 15) + (1 << 15)) >> 16) as u32;
+            + (((bins - 1) as u64 * p.step16.to_bits() as u64 * (1 << 15) + (1 << 15)) >> 16)
+                as u32;
         assert_eq!(d[0].to_bits(), mid);
         assert_eq!(
             d[1].to_bits(),
             p.r_min16.to_bits() + 10 * p.step16.to_bits()
         );
+        // In metres the window's middle, up to Q16.16 rounding: half an LSB each of r_min16,
+        // of step16 per bin of the (bins − 1) / 2 and of the result.
         let metres = d[0].to_num::<f64>();
-        assert!((metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs() < 1e-4);
+        let lsb = 1.0 / 65536.0;
+        let tolerance = ((bins - 1) as f64 / 2.0 + 2.0) * lsb / 2.0;
+        let error = (metres - (config::R_MIN_M + config::R_MAX_M) / 2.0).abs();
+        assert!(error <= tolerance, "{error} > {tolerance}");
     }
 
     #[test]

@@ -182,19 +182,11 @@ mod tests {
     #[test]
     fn attitude_and_pair_fields_are_checked() {
         let img = image(1);
-        let frame_with = |q: Option<[f32; 4]>| {
-            let mut h = Header {
-                t: kind::FRAME,
-                seq: 1,
-                roll: Some(7.0),
-                r: Some(config::INPUT_RANGE_BINS as u32),
-                b: Some(config::INPUT_COLUMNS as u32),
-                len: Some(img.len() as u32),
-                ..Header::default()
-            };
-            h.set_q(q);
+        // One frame header; the cases below differ only in its attitude fields.
+        let frame = frame_header(1);
+        let decode = |h: &Header<'_>| {
             let mut d = Decoder::new();
-            for b in raw_bytes(&h, &img) {
+            for b in raw_bytes(h, &img) {
                 d.push(b);
             }
             match d.poll().unwrap() {
@@ -202,6 +194,11 @@ mod tests {
                 Ok(m) => panic!("{m:?}"),
                 Err(e) => Err(e),
             }
+        };
+        let frame_with = |q: Option<[f32; 4]>| {
+            let mut h = frame.clone();
+            h.set_q(q);
+            decode(&h)
         };
         // An older host's frame (no `q`) decodes, without attitude: the roll-only rule.
         assert_eq!(frame_with(None), Ok(None));
@@ -217,21 +214,11 @@ mod tests {
             );
         }
         // Some of the four fields only: refused.
-        let h = Header {
-            t: kind::FRAME,
-            seq: 1,
-            roll: Some(7.0),
-            r: Some(config::INPUT_RANGE_BINS as u32),
-            b: Some(config::INPUT_COLUMNS as u32),
-            len: Some(img.len() as u32),
+        let partial = Header {
             qw: Some(1.0),
-            ..Header::default()
+            ..frame.clone()
         };
-        let mut d = Decoder::new();
-        for b in raw_bytes(&h, &img) {
-            d.push(b);
-        }
-        assert_eq!(d.poll().unwrap(), Err(DecodeError::BadField { field: "q" }));
+        assert_eq!(decode(&partial), Err(DecodeError::BadField { field: "q" }));
         // A status with an unknown reason or missing figures is refused.
         let status_with = |why: &'static str, proll: Option<f32>| {
             let h = Header {
@@ -483,9 +470,14 @@ mod tests {
         let img = image(2);
         let mut big = frame_header(1);
         big.len = Some(MAX_PAYLOAD_LEN as u32 + 1);
+        // Twice the build's range bins: a geometry no spec of this build has.
+        let (r, b) = (
+            2 * config::INPUT_RANGE_BINS as u32,
+            config::INPUT_COLUMNS as u32,
+        );
         let mut geo = frame_header(1);
-        geo.r = Some(512);
-        geo.len = Some(512 * 64);
+        geo.r = Some(r);
+        geo.len = Some(r * b);
         let mut short = frame_header(1);
         short.len = Some(100);
         let unknown = Header {
@@ -500,11 +492,13 @@ mod tests {
         };
         status_len.len = Some(4);
         let cases = [
-            (raw(&big, &[]), DecodeError::Oversized { len: 16385 }),
             (
-                raw(&geo, &img),
-                DecodeError::WrongGeometry { r: 512, b: 64 },
+                raw(&big, &[]),
+                DecodeError::Oversized {
+                    len: MAX_PAYLOAD_LEN as u32 + 1,
+                },
             ),
+            (raw(&geo, &img), DecodeError::WrongGeometry { r, b }),
             (
                 raw(&short, &img[..100]),
                 DecodeError::BadLength {

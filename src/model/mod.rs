@@ -240,6 +240,7 @@ impl<'a> Model<'a> {
             layer_params(l, p, index),
             matches!(l.kind, LayerKind::ConvTranspose3d),
             p.bound,
+            Some(index),
         )
     }
 

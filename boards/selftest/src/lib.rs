@@ -9,10 +9,11 @@
 //!   gives exactly the depth map the library computed on x86 (the golden vector);
 //!
 //! and reports the cost of each layer in the board's clock unit (instructions under QEMU
-//! `-icount`, core cycles on silicon).
+//! `-icount`, core cycles on silicon). It also holds the boards' stack paint ([`Stack`]).
 
 #![no_std]
-#![forbid(unsafe_code)]
+// Denied, not forbidden: the stack paint needs raw memory access, allowed in its module only.
+#![deny(unsafe_code)]
 
 use core::fmt::Arguments;
 
@@ -22,6 +23,10 @@ use epssn::geometry;
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
+
+#[allow(unsafe_code)]
+mod stack;
+pub use stack::Stack;
 
 /// The weight blob the firmware serves with, checked on the host at build time.
 pub static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));

@@ -1,14 +1,14 @@
-//! The STM32H743 board: clocks, caches, cycle counter, busy LED, link UART, stack paint.
+//! The STM32H743 board: clocks, caches, cycle counter, busy LED, link UART, stack region.
 //! The only file that knows the part and the pinout (Nucleo-H743ZI: USART3 on PD8/PD9 is the
 //! ST-LINK's virtual COM port, LD1 on PB0); another module changes the pins here.
 
 use core::mem::MaybeUninit;
-use core::ptr::{read_volatile, write_volatile};
 
 use cortex_m::peripheral::DWT;
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::usart::{self, BufferedUart};
 use embassy_stm32::{bind_interrupts, peripherals};
+use epssn_selftest::Stack;
 
 use crate::uart::Link;
 
@@ -113,55 +113,12 @@ pub fn cycles() -> u32 {
     DWT::cycle_count()
 }
 
-extern "C" {
-    /// Initial stack pointer (top of the stack), from cortex-m-rt's link.x.
-    static _stack_start: u32;
-    /// End of the static RAM sections; the stack's lower limit without flip-link.
-    static _stack_end: u32;
-}
-
 /// Start of DTCM, the RAM region of memory.x (flip-link puts the stack there).
 const RAM_ORIGIN: usize = 0x2000_0000;
 
-/// The stack region `[bottom, top)`, as in the QEMU firmware's board.
-fn stack_region() -> (usize, usize) {
-    let top = core::ptr::addr_of!(_stack_start) as usize;
-    let end = core::ptr::addr_of!(_stack_end) as usize;
-    let bottom = if end < top { end } else { RAM_ORIGIN };
-    ((bottom + 3) & !3, top & !3)
-}
-
-const PAINT: u32 = 0xDEAD_C0DE;
-
-/// Paints the unused stack below the current stack pointer, for [`stack_high_water`].
-#[inline(never)]
-pub fn paint_stack() {
-    let (bottom, _) = stack_region();
-    let sp = cortex_m::register::msp::read() as usize & !3;
-    let end = sp.saturating_sub(64);
-    let mut addr = bottom;
-    while addr < end {
-        // SAFETY: [bottom, sp − 64) is stack memory below the live frames: nothing uses it
-        // yet (the UART interrupt runs on the same stack, but only above the current frame
-        // while it nests); the addresses are word-aligned DTCM.
-        unsafe { write_volatile(addr as *mut u32, PAINT) };
-        addr += 4;
-    }
-}
-
-/// Bytes of stack ever used since [`paint_stack`].
-pub fn stack_high_water() -> u32 {
-    let (bottom, top) = stack_region();
-    let mut addr = bottom;
-    // SAFETY: reads of word-aligned stack DTCM below the live frames or within them.
-    while addr < top && unsafe { read_volatile(addr as *const u32) } == PAINT {
-        addr += 4;
-    }
-    (top - addr) as u32
-}
-
-/// Bytes of the stack region.
-pub fn stack_size() -> u32 {
-    let (bottom, top) = stack_region();
-    (top - bottom) as u32
+/// The stack, for its paint and high-water mark (the implementation every board shares).
+pub fn stack() -> Stack {
+    // SAFETY: RAM_ORIGIN is the origin of memory.x's RAM region (DTCM), which cortex-m-rt
+    // (through flip-link) puts this image's stack in.
+    unsafe { Stack::new(RAM_ORIGIN) }
 }

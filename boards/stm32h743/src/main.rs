@@ -66,7 +66,8 @@ fn main() -> ! {
             (*core::ptr::addr_of_mut!(DECODER)).write(Decoder::new()),
         )
     };
-    board::paint_stack();
+    let stack = board::stack();
+    stack.paint();
     let model = Model::from_blob(epssn_selftest::WEIGHTS);
     let now = board::cycles;
     let clock = epssn_selftest::Clock {
@@ -85,8 +86,8 @@ fn main() -> ! {
     );
     defmt::info!(
         "stack high-water mark: {=u32} of {=u32} bytes",
-        board::stack_high_water(),
-        board::stack_size()
+        stack.high_water(),
+        stack.size()
     );
     let model = match (failures, model) {
         (0, Ok(model)) => model,
@@ -100,7 +101,7 @@ fn main() -> ! {
     };
     defmt::info!("self-test: PASS");
     defmt::info!("serving the link on USART3");
-    let high_water = board::stack_high_water;
+    let high_water = || stack.high_water();
     let mut server = epssn::server::Server::new(
         &model,
         ws,

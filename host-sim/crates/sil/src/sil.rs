@@ -198,18 +198,14 @@ fn firmware_blob() -> Result<Vec<u8>> {
 }
 
 /// Builds the firmware (release; cargo decides whether anything changed) for the spec this
-/// host build was generated from, and returns the ELF path. EPSSN-S builds in
-/// `firmware/target`, any other configuration in `firmware/target/<spec stem>`, so the two
-/// never rebuild each other's artefacts.
+/// host build was generated from, and returns the ELF path. The target directory is
+/// `epssn_spec::load::per_spec_dir` of `firmware/target` (EPSSN-S in `firmware/target`, any
+/// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
+/// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
     let dir = repo_root().join("firmware");
     let spec_file = epssn::config::SPEC_FILE_NAME;
-    let target = if spec_file == epssn_spec::load::DEFAULT_SPEC_FILE {
-        dir.join("target")
-    } else {
-        dir.join("target")
-            .join(epssn_spec::load::spec_stem(spec_file))
-    };
+    let target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .args(["build", "--release", "--quiet", "--target-dir"])
         .arg(&target)
