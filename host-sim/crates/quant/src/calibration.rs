@@ -6,7 +6,8 @@
 //! the other's resolution (`host-sim qdiag` shows the cost volume alone costs more than half of
 //! the int8 error). The search starts from one percentile everywhere and then, tensor by tensor
 //! in network order, keeps the candidate percentile whose blob gives the smallest mean
-//! |int8 − float| depth over the ground-truth mask of the calibration samples. Every candidate is
+//! |int8 − float| depth over the scored pixels of the calibration samples (the ground-truth
+//! mask, or every pixel: `quantise --search-pixels`). Every candidate is
 //! a complete blob that the library accepts (accumulator bounds included), run by the library
 //! itself, so the score is what the firmware will do. Calibration samples come from the training
 //! split only.
@@ -27,7 +28,7 @@ use epssn_reference::floatref::FloatTrace;
 pub struct CalibSample {
     /// u8 polar views, reference first.
     pub views: Vec<Vec<u8>>,
-    /// Ground-truth mask `[E][A]`: where depth accuracy counts.
+    /// Pixels `[E][A]` the search scores: the ground-truth mask, or all of them.
     pub mask: Vec<bool>,
     /// The float model's depth, metres.
     pub float_depth: Vec<f32>,
@@ -75,7 +76,7 @@ impl SortedMagnitudes {
 pub struct Search {
     /// Chosen percentile per tensor.
     pub percentiles: BTreeMap<String, f64>,
-    /// Mean masked |int8 − float| depth on the calibration samples with one percentile
+    /// Mean |int8 − float| depth over the scored pixels of the calibration samples with one percentile
     /// everywhere, mm.
     pub start_mm: f64,
     /// The same after the search, mm.
@@ -84,7 +85,7 @@ pub struct Search {
     pub evaluations: usize,
 }
 
-/// Mean masked |int8 − float| depth (mm) of the blob quantised with `ranges`; `None` if the
+/// Mean |int8 − float| depth (mm) over the scored pixels of the blob quantised with `ranges`; `None` if the
 /// quantiser or the library refuses it.
 pub fn score(
     weights: &FloatWeights,

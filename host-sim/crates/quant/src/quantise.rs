@@ -306,6 +306,13 @@ mod tests {
     }
 
     #[test]
+    fn search_scores_the_mask_or_every_pixel() {
+        let mask = [1.0, 0.0, 1.0, 0.0];
+        assert_eq!(SearchPixels::Mask.scored(&mask), [true, false, true, false]);
+        assert_eq!(SearchPixels::All.scored(&mask), [true; 4]);
+    }
+
+    #[test]
     fn exp_table_is_monotone_and_anchored() {
         let t = exp_table(0.05);
         assert_eq!(t[0], 65535);
@@ -342,6 +349,10 @@ pub struct QuantiseArgs {
     /// Sweeps of the per-tensor search.
     #[arg(long, default_value_t = 1)]
     pub search_passes: usize,
+    /// Depth pixels the search scores |int8 − float| on: the ground-truth mask (surfaces in the
+    /// window), or all pixels, as the paper's MAE counts them (rays that meet nothing too).
+    #[arg(long, value_enum, default_value_t = SearchPixels::Mask)]
+    pub search_pixels: SearchPixels,
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
@@ -351,6 +362,27 @@ pub struct QuantiseArgs {
     /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
     #[arg(long, conflicts_with_all = ["weights", "random_init"])]
     pub restamp: Option<std::path::PathBuf>,
+}
+
+/// Which depth pixels the per-tensor search scores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SearchPixels {
+    /// The ground-truth mask: rays that meet a surface inside the window.
+    Mask,
+    /// Every pixel of the depth map, as the paper's MAE: on sphere scenes 90 % of the rays
+    /// meet nothing and read r_max, and their int8 error counts as much.
+    All,
+}
+
+impl SearchPixels {
+    /// The pixels scored, from a sample's ground-truth mask (1 = surface in the window).
+    pub fn scored(self, mask: &[f32]) -> Vec<bool> {
+        match self {
+            SearchPixels::Mask => mask.iter().map(|&m| m > 0.5).collect(),
+            SearchPixels::All => vec![true; mask.len()],
+        }
+    }
 }
 
 /// `quantise --restamp DIR`: the blob of `DIR` carrying the current spec's CRC.
@@ -447,7 +479,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                     let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
                     let trace = epssn_reference::floatref::run(&weights, &refs)?;
                     let sample = CalibSample {
-                        mask: s.mask.iter().map(|&m| m > 0.5).collect(),
+                        mask: args.search_pixels.scored(&s.mask),
                         float_depth: trace.depth.clone(),
                         views,
                     };
@@ -463,6 +495,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                     "samples": traces.len(),
                     "percentile": args.percentile,
                 },
+                "search_pixels": args.search_pixels,
             });
             (
                 weights,
