@@ -10,12 +10,17 @@ fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
 }
 
-#[test]
-fn sil_is_bit_exact_and_firmware_survives_fuzz() {
+/// Runs `host-sim sil ARGS --json`, fails the test with both streams unless it succeeds, and
+/// returns its JSON report.
+fn sil_json<I, S>(args: I) -> serde_json::Value
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
     let out = host_sim()
-        .args([
-            "sil", "--frames", "3", "--fuzz", "200", "--seed", "11", "--faults", "1", "--json",
-        ])
+        .arg("sil")
+        .args(args)
+        .arg("--json")
         .output()
         .expect("run host-sim sil");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -25,7 +30,14 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
         stdout,
         String::from_utf8_lossy(&out.stderr)
     );
-    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    serde_json::from_str(&stdout).expect("JSON report")
+}
+
+#[test]
+fn sil_is_bit_exact_and_firmware_survives_fuzz() {
+    let r = sil_json([
+        "--frames", "3", "--fuzz", "200", "--seed", "11", "--faults", "1",
+    ]);
     // The bundled demo recording's first frames have rolls 0, 7, 0: frame 2 (7°) completes a
     // pair with frame 1 as reference, frame 3 (0°) one with itself as reference and frame 2 as
     // source (the lower roll is always the reference).
@@ -118,20 +130,7 @@ fn recording_with_unfit_geometry_is_refused() {
 fn short_soak_keeps_maps_bit_exact_and_the_stack_unchanged() {
     // One block (19 faults, a hello, the 3 frames again): the soak's bookkeeping on a run short
     // enough for CI; docs/LINK.md has the figures of a 5,000-message soak.
-    let out = host_sim()
-        .args([
-            "sil", "--frames", "3", "--soak", "40", "--seed", "5", "--json",
-        ])
-        .output()
-        .expect("run host-sim sil --soak");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "host-sim sil --soak failed: {}\n{}",
-        stdout,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    let r = sil_json(["--frames", "3", "--soak", "40", "--seed", "5"]);
     let s = &r["soak"];
     let blocks = s["blocks"].as_u64().unwrap();
     assert!(blocks >= 1, "{s}");
@@ -161,27 +160,12 @@ fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
     let tol = epssn::config::PAIR_RESIDUAL_TOLERANCE_DEG;
     let dir = tempfile::tempdir().unwrap();
     let rec = common::jittered_recording(dir.path(), 0.5 * tol, 2.0 * tol);
-    let out = host_sim()
-        .args([
-            "sil",
-            "--frames",
-            "8",
-            "--faults",
-            "0",
-            "--json",
-            "--recording",
-        ])
-        .arg(&rec)
-        .output()
-        .expect("run host-sim sil");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "host-sim sil failed: {}\n{}",
-        stdout,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_str(&stdout).expect("JSON report");
+    let mut args: Vec<std::ffi::OsString> = ["--frames", "8", "--faults", "0", "--recording"]
+        .iter()
+        .map(Into::into)
+        .collect();
+    args.push(rec.into());
+    let r = sil_json(args);
     // Seqs are frame index + 1; odd seqs are references (roll 0, level), even ones sources
     // (roll 7°), 2 and 6 with the low jitter, 4 and 8 with the high. The device pairs each new
     // frame with the cache (the lower roll is the reference), so 3 pairs with the cached 2 as
