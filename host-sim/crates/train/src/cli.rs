@@ -143,8 +143,35 @@ fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
     Ok(())
 }
 
+/// The rows of a `loss.csv` that [`write_curves`] wrote.
+fn read_loss_csv(path: &Path) -> Result<Vec<LossRow>> {
+    let csv = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let mut history = Vec::new();
+    for line in csv.lines().skip(1).filter(|l| !l.trim().is_empty()) {
+        let f: Vec<&str> = line.split(',').collect();
+        ensure!(f.len() == 4, "bad loss.csv line `{line}`");
+        history.push(LossRow {
+            epoch: f[0].parse()?,
+            step: f[1].parse()?,
+            train_loss: f[2].parse()?,
+            val_loss: f[3].parse()?,
+        });
+    }
+    Ok(history)
+}
+
+/// Redraws `dir/loss.png` from `dir/loss.csv` (e.g. after the plot's style changed); the CSV
+/// is left as it is.
+pub fn redraw_loss_plot(dir: &Path) -> Result<()> {
+    plot_curves(dir, &read_loss_csv(&dir.join("loss.csv"))?)
+}
+
 fn write_curves(out: &Path, rows: &[LossRow]) -> Result<()> {
     write_csv(&out.join("loss.csv"), rows)?;
+    plot_curves(out, rows)
+}
+
+fn plot_curves(out: &Path, rows: &[LossRow]) -> Result<()> {
     let t: Vec<(f64, f64)> = rows
         .iter()
         .map(|r| (r.epoch as f64, r.train_loss as f64))
@@ -176,19 +203,7 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
         field("batch")?,
         field("views")?
     );
-    let csv = std::fs::read_to_string(out.join("loss.csv"))
-        .with_context(|| format!("{}/loss.csv", out.display()))?;
-    let mut history = Vec::new();
-    for line in csv.lines().skip(1).filter(|l| !l.trim().is_empty()) {
-        let f: Vec<&str> = line.split(',').collect();
-        ensure!(f.len() == 4, "bad loss.csv line `{line}`");
-        history.push(LossRow {
-            epoch: f[0].parse()?,
-            step: f[1].parse()?,
-            train_loss: f[2].parse()?,
-            val_loss: f[3].parse()?,
-        });
-    }
+    let history = read_loss_csv(&out.join("loss.csv"))?;
     let epoch = field("epochs")? as usize;
     ensure!(
         history.len() == epoch,
@@ -659,4 +674,42 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn loss_curves_read_back_and_redraw() {
+        let dir = tempfile::tempdir().unwrap();
+        let rows: Vec<LossRow> = (1..=4)
+            .map(|e| LossRow {
+                epoch: e,
+                step: 10 * e,
+                train_loss: 1.0 / e as f32,
+                val_loss: if e == 2 { f32::NAN } else { 1.2 / e as f32 },
+            })
+            .collect();
+        write_curves(dir.path(), &rows).unwrap();
+        let back = read_loss_csv(&dir.path().join("loss.csv")).unwrap();
+        assert_eq!(back.len(), rows.len());
+        for (a, b) in back.iter().zip(&rows) {
+            assert_eq!(
+                (a.epoch, a.step, a.train_loss),
+                (b.epoch, b.step, b.train_loss)
+            );
+            assert!(a.val_loss == b.val_loss || (a.val_loss.is_nan() && b.val_loss.is_nan()));
+        }
+        std::fs::remove_file(dir.path().join("loss.png")).unwrap();
+        redraw_loss_plot(dir.path()).unwrap();
+        assert!(dir.path().join("loss.png").exists());
+        // A malformed history is an error, not a panic.
+        std::fs::write(
+            dir.path().join("loss.csv"),
+            "epoch,step,train_loss,val_loss\n1,2\n",
+        )
+        .unwrap();
+        assert!(redraw_loss_plot(dir.path()).is_err());
+    }
 }
