@@ -338,6 +338,22 @@ pub fn dot2x2_row(
     true
 }
 
+/// `r(a)` of the requantising row functions: `x = SMMULR(a << left1, multiplier)`, then
+/// `(x + half + (x >> 31 & neg)) >> right` (`right < 32`). One definition for their portable
+/// loops and the kernels' `RowRequant::apply`, so the three cannot drift apart.
+#[inline(always)]
+pub(crate) fn row_requant(
+    a: i32,
+    multiplier: i32,
+    left1: u32,
+    right: u32,
+    half: i32,
+    neg: i32,
+) -> i32 {
+    let x = smmulr(a.wrapping_shl(left1), multiplier);
+    x.wrapping_add(half).wrapping_add((x >> 31) & neg) >> right
+}
+
 /// A row of requantised int8 values and their maximum: `out[i] = sat(r(acc[i]))` for the
 /// first `min(acc.len(), out.len())` values, with `x = SMMULR(acc << left1, multiplier)`,
 /// `r = (x + half + (x >> 31 & neg)) >> right` (the kernels' `RowRequant`) and `sat` the int8
@@ -405,8 +421,7 @@ pub fn requant_max_row(
     }
     let mut mx = max as i32;
     for (d, &a) in out[..len].iter_mut().zip(&acc[..len]) {
-        let x = smmulr(a.wrapping_shl(left1), multiplier);
-        let t = x.wrapping_add(half).wrapping_add((x >> 31) & neg) >> right.min(31);
+        let t = row_requant(a, multiplier, left1, right.min(31), half, neg);
         let t = if relu {
             t.clamp(0, 127)
         } else {
@@ -500,8 +515,7 @@ pub fn requant_row_s8(
         return;
     }
     for (d, &a) in out[..len].iter_mut().zip(&acc[..len]) {
-        let x = smmulr(a.wrapping_shl(left1), multiplier);
-        let t = x.wrapping_add(half).wrapping_add((x >> 31) & neg) >> right.min(31);
+        let t = row_requant(a, multiplier, left1, right.min(31), half, neg);
         let t = if relu { t.max(0) } else { t };
         let t = match skip {
             Some(l) => t.saturating_add(l[*d as u8 as usize]),

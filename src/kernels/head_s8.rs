@@ -244,18 +244,30 @@ impl<'a> HeadPlan<'a> {
         }
         check_conv_transpose_shape(shape, whole_len(shape)?, mul3(shape.out_size)?)?;
         check_params(soft, shape.out_size[1])?;
+        Ok(Self::prepare(shape, checked, soft, weights))
+    }
+
+    /// The plan of a validated head: the one place that chooses between the optimised
+    /// kernel (with `SMMULR` requantisation when the bound allows) and the plain one, and
+    /// lays out the optimised kernel's weights.
+    fn prepare(
+        shape: &ConvShape,
+        checked: &CheckedParams<'a>,
+        soft: &SoftArgmaxParams<'a>,
+        weights: &'a mut HeadWeights,
+    ) -> Self {
         let params = *checked.params();
         let fast = fast_sizes(shape).map(|f| {
             prepare_weights(shape, &f, &params, &mut weights.0);
             (f, params.requant[0].fits_fast(checked.bound()))
         });
-        Ok(Self {
+        Self {
             shape: *shape,
             params,
             soft: *soft,
             fast,
             wbuf: &weights.0,
-        })
+        }
     }
 
     /// Step `t` (as [`head_step_s8`]) from the ring `[P][C][H][W]` of its input planes.
@@ -264,19 +276,25 @@ impl<'a> HeadPlan<'a> {
         super::expect(Operand::Input, ring_len(shape)?, ring.len())?;
         let [rows, _, columns] = shape.out_size;
         super::expect(Operand::Depth, rows * columns, depth.len())?;
-        let planes = ring_planes(shape, ring, t);
-        let (p, soft) = (&self.params, &self.soft);
+        self.run_step(&ring_planes(shape, ring, t), depth);
+        Ok(())
+    }
+
+    /// One step from `src` with the kernel [`HeadPlan::prepare`] chose (`depth` validated).
+    /// Inlined so [`HeadPlan::step`] compiles as it did before [`run`] shared it.
+    #[inline(always)]
+    fn run_step(&self, src: &Planes<'_>, depth: &mut [U16F16]) {
+        let (shape, p, soft) = (&self.shape, &self.params, &self.soft);
         match &self.fast {
             Some((f, true)) => {
                 let rq = RowRequant::new(p.requant[0]);
-                step_fast(shape, f, &planes, p, rq, self.wbuf, soft, depth);
+                step_fast(shape, f, src, p, rq, self.wbuf, soft, depth);
             }
             Some((f, false)) => {
-                step_fast(shape, f, &planes, p, p.requant[0], self.wbuf, soft, depth);
+                step_fast(shape, f, src, p, p.requant[0], self.wbuf, soft, depth);
             }
-            None => step_plain(shape, &planes, p, soft, depth),
+            None => step_plain(shape, src, p, soft, depth),
         }
-        Ok(())
     }
 }
 
@@ -476,8 +494,9 @@ pub const fn layers_head_col_words(layers: &[LayerShape]) -> usize {
     most
 }
 
-/// Runs every step `planes_of` gives (one, or all of them), optimised when the shape allows,
-/// else plain. Shape, parameters and `depth` are validated.
+/// Runs every step `planes_of` gives (one, or all of them) through a [`HeadPlan`] prepared
+/// here, so the one-shot functions take the same kernel as the plan. Shape, parameters and
+/// `depth` are validated; `bound` is the worst-case accumulator [`check`] computed.
 fn run<'a>(
     shape: &ConvShape,
     bound: i64,
@@ -488,33 +507,12 @@ fn run<'a>(
 ) {
     let one = planes_of(0).ring.is_some();
     let steps = if one { 0..1 } else { 0..head_steps(shape) };
-    let Some(f) = fast_sizes(shape) else {
-        for t in steps {
-            let p = planes_of(t);
-            step_plain(shape, &p, params, soft, depth);
-        }
-        return;
-    };
-    let mut wbuf = [0u32; HEAD_W_WORDS];
-    prepare_weights(shape, &f, params, &mut wbuf);
-    let rq = params.requant[0];
-    let fast = rq.fits_fast(bound);
+    // `bound` is check_layer_bounds' on these parameters (through check_conv_transpose).
+    let checked = CheckedParams::verified(shape, *params, true, bound, None);
+    let mut weights = HeadWeights::new();
+    let plan = HeadPlan::prepare(shape, &checked, soft, &mut weights);
     for t in steps {
-        let p = planes_of(t);
-        if fast {
-            step_fast(
-                shape,
-                &f,
-                &p,
-                params,
-                RowRequant::new(rq),
-                &wbuf,
-                soft,
-                depth,
-            );
-        } else {
-            step_fast(shape, &f, &p, params, rq, &wbuf, soft, depth);
-        }
+        plan.run_step(&planes_of(t), depth);
     }
 }
 

@@ -102,8 +102,15 @@ impl RowRequant {
 impl Apply for RowRequant {
     #[inline(always)]
     fn apply(self, acc: i32) -> i32 {
-        let x = crate::dsp::smmulr(acc.wrapping_shl(self.left1), self.multiplier);
-        x.wrapping_add(self.half).wrapping_add((x >> 31) & self.neg) >> self.right
+        // `right` ≤ 31 by construction (`new`).
+        crate::dsp::row_requant(
+            acc,
+            self.multiplier,
+            self.left1,
+            self.right,
+            self.half,
+            self.neg,
+        )
     }
 
     #[inline(always)]
