@@ -29,7 +29,7 @@ pub struct CalibSample {
     /// u8 polar views, reference first.
     pub views: Vec<Vec<u8>>,
     /// Pixels `[E][A]` the search scores: the ground-truth mask, or all of them.
-    pub mask: Vec<bool>,
+    pub scored: Vec<bool>,
     /// The float model's depth, metres.
     pub float_depth: Vec<f32>,
 }
@@ -104,7 +104,7 @@ pub fn score(
             |ws, s| -> Result<f64> {
                 let d = epssn_reference::int8::depth_metres(&model, &s.views, ws)?;
                 let (mut sum, mut n) = (0f64, 0usize);
-                for ((a, b), &m) in d.iter().zip(&s.float_depth).zip(&s.mask) {
+                for ((a, b), &m) in d.iter().zip(&s.float_depth).zip(&s.scored) {
                     if m {
                         sum += (a - b).abs() as f64;
                         n += 1;
@@ -195,7 +195,7 @@ mod tests {
         let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
         let trace = epssn_reference::floatref::run(&weights, &refs)?;
         let sample = CalibSample {
-            mask: vec![true; trace.depth.len()],
+            scored: vec![true; trace.depth.len()],
             float_depth: trace.depth.clone(),
             views,
         };

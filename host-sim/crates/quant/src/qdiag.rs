@@ -14,7 +14,7 @@ use anyhow::{anyhow, ensure, Context, Result};
 use epssn::config::LAYERS;
 use rayon::prelude::*;
 
-use crate::quantise::quantise_weights;
+use crate::quantise::{quantise_weights, SearchPixels};
 use epssn_reference::float::WeightLayout;
 use epssn_reference::floatref::{fold_all, run_folded, FoldedWeights};
 
@@ -154,7 +154,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
             let s = epssn_sim::dataset::Sample::load(d)?;
             let views = s.polar_views_u8();
             let refs: Vec<&[u8]> = views.iter().take(views_n).map(|v| v.as_slice()).collect();
-            let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
+            let mask = SearchPixels::Mask.scored(&s.mask);
             let mut float_depth = Vec::new();
             let mut rows = Vec::new();
             for c in &configs {

@@ -479,7 +479,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                     let refs: Vec<&[u8]> = views.iter().map(|v| v.as_slice()).collect();
                     let trace = epssn_reference::floatref::run(&weights, &refs)?;
                     let sample = CalibSample {
-                        mask: args.search_pixels.scored(&s.mask),
+                        scored: args.search_pixels.scored(&s.mask),
                         float_depth: trace.depth.clone(),
                         views,
                     };

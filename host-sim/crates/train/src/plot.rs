@@ -45,12 +45,12 @@ pub fn plot_losses(path: &Path, train: &[(f64, f64)], val: &[(f64, f64)]) -> Res
 /// Draws two curves `(x, y)` (NaN points skipped) with axis titles and a legend to a PNG.
 pub fn plot_two(
     path: &Path,
-    train: &[(f64, f64)],
-    val: &[(f64, f64)],
+    first: &[(f64, f64)],
+    second: &[(f64, f64)],
     labels: &Labels,
 ) -> Result<()> {
     let mut img = RgbImage::from_pixel(W, H, Rgb([255, 255, 255]));
-    let all = train.iter().chain(val).filter(|p| p.1.is_finite());
+    let all = first.iter().chain(second).filter(|p| p.1.is_finite());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for &(x, y) in all {
         x0 = x0.min(x);
@@ -147,7 +147,7 @@ pub fn plot_two(
         &x_end,
         black,
     );
-    for (pts, c) in [(train, blue), (val, orange)] {
+    for (pts, c) in [(first, blue), (second, orange)] {
         let mut prev: Option<(i64, i64)> = None;
         for &p in pts {
             if !p.1.is_finite() {
