@@ -583,7 +583,8 @@ pub fn pack_strided(
                     )
                 };
             }
-            // Layers after the first have no input offset: two adds fewer per word.
+            // Layers without an input offset (all but the first and a d1 reading an unsigned cost
+            // volume): two adds fewer per word.
             if oa == 0 && ob == 0 {
                 column!("", "");
             } else {

@@ -237,3 +237,50 @@ fn streamed_path_equals_whole_tensor_path() {
         }
     }
 }
+
+/// `blob` rewritten with its cost-volume zero point tensor removed (`None`) or set.
+fn with_cost_zero_point(blob: &[u8], zero_point: Option<i32>) -> Vec<u8> {
+    let parsed = epssn::blob::Blob::parse(blob, config::SPEC_HASH).unwrap();
+    let name = epssn::model::COST_ZERO_POINT_TENSOR;
+    let z = zero_point.map(|z| z.to_le_bytes());
+    let tensors: Vec<(&str, epssn::blob::Dtype, &[u8])> = (0..parsed.tensor_count())
+        .filter_map(|i| parsed.entry(i))
+        .filter_map(|e| {
+            let n = std::str::from_utf8(e.name).unwrap();
+            match (n == name, &z) {
+                (false, _) => Some((n, e.dtype, e.bytes)),
+                (true, Some(z)) => Some((n, e.dtype, &z[..])),
+                (true, None) => None,
+            }
+        })
+        .collect();
+    let mut out = vec![0u8; blob.len() + 64];
+    let n = epssn::blob::write_blob(config::SPEC_HASH, &tensors, &mut out).unwrap();
+    out.truncate(n);
+    out
+}
+
+/// The quantiser writes the unsigned cost volume (zero point −128); blobs written before it
+/// (no zero-point tensor) still load with zero point 0 and run bit-exactly against the
+/// reference, and any other zero point is refused.
+#[test]
+fn cost_zero_points_old_new_and_invalid() {
+    let blob = quantised_blob(21);
+    let model = Model::from_blob(&blob).unwrap();
+    assert_eq!(model.cost_zero_point(), -128);
+    let old = with_cost_zero_point(&blob, None);
+    assert_eq!(Model::from_blob(&old).unwrap().cost_zero_point(), 0);
+    let mut rng = Rng(22);
+    let a = synthetic_image(&mut rng, 0.4);
+    let b = synthetic_image(&mut rng, 0.5);
+    assert!(assert_bit_exact(&old, &[&a, &b], "blob without a cost zero point") > 0);
+    for bad in [-127, -1, 1, 128, i32::MIN] {
+        assert_eq!(
+            Model::from_blob(&with_cost_zero_point(&blob, Some(bad))).unwrap_err(),
+            epssn::model::Error::Kernel(epssn::kernels::KernelError::CostZeroPoint {
+                zero_point: bad
+            }),
+            "zero point {bad}"
+        );
+    }
+}

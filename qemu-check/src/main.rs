@@ -14,7 +14,7 @@ use epssn::kernels::conv2d_s8::{conv2d_s8, conv2d_s8_plain};
 use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain};
 use epssn::kernels::conv_transpose3d_s8::{conv_transpose3d_s8, conv_transpose3d_s8_plain};
 use epssn::kernels::cost_volume_s8::{
-    cost_volume_s8, cost_volume_s8_plain, CostShape, CostVolume, SourceView,
+    cost_volume_s8, cost_volume_s8_plain, CostRequant, CostShape, CostVolume, SourceView,
 };
 use epssn::kernels::head_s8::{head_s8, head_step_planes, head_step_s8, head_steps};
 use epssn::kernels::soft_argmax_s8::{
@@ -83,7 +83,12 @@ fn main() -> ! {
                 weights: &w[..l.weight_len()],
                 bias: &bias[..l.out_channels],
                 requant: &rq[..l.out_channels],
-                input_offset: if l.name == "f0" { 128 } else { 0 },
+                // The network input and the unsigned cost volume (d1's input) add 128.
+                input_offset: if l.name == "f0" || l.name == "d1" {
+                    128
+                } else {
+                    0
+                },
                 relu: l.relu,
             };
             let n_in = l.input_len();
@@ -112,7 +117,10 @@ fn main() -> ! {
                 config::LayerKind::ConvTranspose3d => {
                     rng.fill(&mut a[..n_out]);
                     b[..n_out].copy_from_slice(&a[..n_out]);
-                    let s = Skip::InPlace { requant: skip_rq };
+                    let s = Skip::InPlace {
+                        requant: skip_rq,
+                        offset: if l.skip == Some("cost") { 128 } else { 0 },
+                    };
                     (
                         conv_transpose3d_s8(&shape, &input[..n_in], &p, s, &mut a[..n_out]),
                         conv_transpose3d_s8_plain(&shape, &input[..n_in], &p, s, &mut b[..n_out]),
@@ -242,9 +250,14 @@ fn main() -> ! {
                 warp: &config::WARP_TABLES[1],
             },
         ];
-        let crq = Requant {
-            multiplier: 1 << 30,
-            shift: -6,
+        // Both zero points: the signed cost of older blobs with 2 views, the unsigned one
+        // the quantiser now writes with 3.
+        let crq = CostRequant {
+            requant: Requant {
+                multiplier: 1 << 30,
+                shift: -6,
+            },
+            zero_point: if views == 1 { 0 } else { -128 },
         };
         let len = config::COST_VOLUME_LEN;
         let r1 = cost_volume_s8(

@@ -15,16 +15,18 @@ use super::{
     check_conv_transpose, check_conv_transpose_shape, check_skip, finish, CheckedParams,
     ConvParams, ConvShape, KernelError, LineScratch, Skip,
 };
-use crate::requant::Requant;
 
-/// The skip operand of output voxel `idx`, read before the voxel is written.
+/// The requantised skip term `MBQM(q_skip + offset)` of output voxel `idx`, read before the
+/// voxel is written.
 #[inline(always)]
-fn skip_at(skip: &Skip<'_>, output: &[i8], idx: usize) -> Option<(i8, Requant)> {
-    match *skip {
-        Skip::None => None,
-        Skip::Separate { skip, requant } => Some((skip[idx], requant)),
-        Skip::InPlace { requant } => Some((output[idx], requant)),
-    }
+fn skip_at(skip: &Skip<'_>, output: &[i8], idx: usize) -> Option<i32> {
+    let q = match *skip {
+        Skip::None => return None,
+        Skip::Separate { skip, .. } => skip[idx],
+        Skip::InPlace { .. } => output[idx],
+    };
+    let (rq, offset) = skip.requant()?;
+    Some(rq.apply(q as i32 + offset))
 }
 
 /// Plain reference: every (input channel, tap) of every output voxel, testing whether the
@@ -266,6 +268,7 @@ mod tests {
     use super::super::Operand;
     use super::*;
     use crate::config;
+    use crate::requant::Requant;
     use std::vec;
     use std::vec::Vec;
 
@@ -315,9 +318,12 @@ mod tests {
             multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
             shift: rng.range(-3, 1) as i32,
         };
+        // An unsigned cost volume as the skip adds 128 to each value first.
+        let offset = [0, 128][rng.below(2)];
         let sep = Skip::Separate {
             skip: &skip_t,
             requant: srq,
+            offset,
         };
         conv_transpose3d_s8_plain(shape, &input, &p, sep, &mut a).unwrap();
         conv_transpose3d_s8(shape, &input, &p, sep, &mut o).unwrap();
@@ -325,12 +331,18 @@ mod tests {
         conv_transpose3d_s8_taps(shape, &input, &p, sep, &mut o).unwrap();
         assert_eq!(a, o, "taps, separate skip: {shape:?}");
         let mut in_place_taps: Vec<i8> = skip_t.clone();
-        let ip = Skip::InPlace { requant: srq };
+        let ip = Skip::InPlace {
+            requant: srq,
+            offset,
+        };
         conv_transpose3d_s8_taps(shape, &input, &p, ip, &mut in_place_taps).unwrap();
         assert_eq!(a, in_place_taps, "taps, in place: {shape:?}");
         let mut in_place_plain: Vec<i8> = skip_t.clone();
         let mut in_place_opt: Vec<i8> = skip_t.clone();
-        let ip = Skip::InPlace { requant: srq };
+        let ip = Skip::InPlace {
+            requant: srq,
+            offset,
+        };
         conv_transpose3d_s8_plain(shape, &input, &p, ip, &mut in_place_plain).unwrap();
         conv_transpose3d_s8(shape, &input, &p, ip, &mut in_place_opt).unwrap();
         assert_eq!(a, in_place_plain, "in place plain: {shape:?}");
@@ -439,6 +451,7 @@ mod tests {
         let sep = Skip::Separate {
             skip: &skip_t,
             requant: Requant::from_real(0.5).unwrap(),
+            offset: 0,
         };
         conv_transpose3d_s8(&shape, &input, &p, sep, &mut o).unwrap();
         for (&x, &y) in a.iter().zip(&o) {
@@ -465,6 +478,7 @@ mod tests {
         let sep = Skip::Separate {
             skip: &short,
             requant: Requant::default(),
+            offset: 0,
         };
         assert_eq!(
             conv_transpose3d_s8(&shape, &input, &p, sep, &mut out),
@@ -485,6 +499,7 @@ mod tests {
                 multiplier: 1 << 30,
                 shift: 30,
             },
+            offset: 0,
         };
         assert!(matches!(
             conv_transpose3d_s8_plain(&shape, &input, &p, bad, &mut out),

@@ -5,7 +5,9 @@
 //! scale, each with its range-independent warp table `[plane][W]`; output cost volume
 //! `[C][N][H][W]` i8 in `0..=127`. For source entry (`column` c, `fraction` α, `visible`):
 //! `w = (F[c]·(256 − α) + F[c+1]·α + 128) >> 8`, invisible → 0; with `n` views
-//! `X = n·Σv² − (Σv)²` and `q = clamp(MBQM(X, M_n, shift_n), 0, 127)`.
+//! `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X, M_n, shift_n), 0, 127 − z)` and the stored value
+//! `q + z`, where the zero point `z` ([`CostRequant`]) is 0 (`q` in `0..=127`) or −128 (the
+//! variance is never negative, so all 256 codes hold `0..=255`: twice the resolution).
 //!
 //! Work: `C · N · H · W · (n + 2·(n − 1))` multiplies (n views; 2 per bilinear warp).
 
@@ -46,6 +48,34 @@ pub struct SourceView<'a> {
     pub warp: &'a [WarpEntry],
 }
 
+/// How the variance is requantised and stored (QUANTISATION.md "Warp and cost volume").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CostRequant {
+    /// `m_n = s_f² / (n² · s_cost)`.
+    pub requant: Requant,
+    /// Stored value of a zero variance: 0 (codes `0..=127`, blobs written before the
+    /// unsigned cost volume) or −128 (codes `−128..=127` for `q` in `0..=255`). The layers
+    /// that read the cost volume add `−zero_point` back (d1's `input_offset`, u0's skip offset).
+    pub zero_point: i32,
+}
+
+impl CostRequant {
+    /// The zero points the contract allows.
+    pub const ZERO_POINTS: [i32; 2] = [0, -128];
+
+    /// The stored value of a requantised variance `q`.
+    #[inline(always)]
+    pub fn store(self, q: i32) -> i8 {
+        (q.clamp(0, 127 - self.zero_point) + self.zero_point) as i8
+    }
+
+    /// True when the zero point is one of [`CostRequant::ZERO_POINTS`].
+    pub const fn zero_point_valid(self) -> bool {
+        self.zero_point == 0 || self.zero_point == -128
+    }
+}
+
 /// Full interpolation weight of the warp fraction (8 fraction bits).
 const ONE: u16 = 256;
 
@@ -53,19 +83,25 @@ fn check(
     shape: &CostShape,
     reference: &[i8],
     sources: &[SourceView<'_>],
-    requant: Requant,
+    cq: CostRequant,
     output: &[i8],
 ) -> Result<(), KernelError> {
-    check_inner(shape, reference, sources, requant, output.len())
+    check_inner(shape, reference, sources, cq, output.len())
 }
 
 fn check_inner(
     shape: &CostShape,
     reference: &[i8],
     sources: &[SourceView<'_>],
-    requant: Requant,
+    cq: CostRequant,
     output_len: usize,
 ) -> Result<(), KernelError> {
+    let requant = cq.requant;
+    if !cq.zero_point_valid() {
+        return Err(KernelError::CostZeroPoint {
+            zero_point: cq.zero_point,
+        });
+    }
     if !(1..=2).contains(&sources.len()) {
         return Err(KernelError::ViewCount {
             sources: sources.len(),
@@ -129,9 +165,9 @@ fn warp(row: &[i8], e: WarpEntry) -> i32 {
 }
 
 #[inline(always)]
-fn cost(sum: i32, sum_sq: i32, n: i32, requant: Requant) -> i8 {
+fn cost(sum: i32, sum_sq: i32, n: i32, cq: CostRequant) -> i8 {
     let x = n * sum_sq - sum * sum;
-    requant.apply(x).clamp(0, 127) as i8
+    cq.store(cq.requant.apply(x))
 }
 
 /// Plain reference: one voxel at a time, index arithmetic from scratch.
@@ -139,10 +175,10 @@ pub fn cost_volume_s8_plain(
     shape: &CostShape,
     reference: &[i8],
     sources: &[SourceView<'_>],
-    requant: Requant,
+    cq: CostRequant,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    check(shape, reference, sources, requant, output)?;
+    check(shape, reference, sources, cq, output)?;
     let CostShape {
         channels,
         planes,
@@ -163,8 +199,7 @@ pub fn cost_volume_s8_plain(
                         sum += v;
                         sum_sq += v * v;
                     }
-                    output[((c * planes + j) * height + r) * width + b] =
-                        cost(sum, sum_sq, n, requant);
+                    output[((c * planes + j) * height + r) * width + b] = cost(sum, sum_sq, n, cq);
                 }
             }
         }
@@ -217,10 +252,10 @@ pub fn cost_volume_s8(
     shape: &CostShape,
     reference: &[i8],
     sources: &[SourceView<'_>],
-    requant: Requant,
+    cq: CostRequant,
     output: &mut [i8],
 ) -> Result<(), KernelError> {
-    check(shape, reference, sources, requant, output)?;
+    check(shape, reference, sources, cq, output)?;
     let CostShape {
         channels: _,
         planes,
@@ -233,11 +268,11 @@ pub fn cost_volume_s8(
         return Ok(());
     }
     if width > MAX_WIDTH {
-        return cost_volume_s8_plain(shape, reference, sources, requant, output);
+        return cost_volume_s8_plain(shape, reference, sources, cq, output);
     }
     // |v0 − v1| ≤ 255 for int8 values and warps in −128..=127.
-    let table: [i8; 256] =
-        core::array::from_fn(|d| requant.apply((d * d) as i32).clamp(0, 127) as i8);
+    let requant = cq.requant;
+    let table: [i8; 256] = core::array::from_fn(|d| cq.store(requant.apply((d * d) as i32)));
     // X ≤ 9·128² for three views.
     let fast = requant.fits_fast(9 * 128 * 128);
     let frq = FastRequant::new(requant);
@@ -277,7 +312,7 @@ pub fn cost_volume_s8(
                             let sum = v0 + v1 + v2;
                             let x = 3 * (v0 * v0 + v1 * v1 + v2 * v2) - sum * sum;
                             let q = if fast { frq.apply(x) } else { requant.apply(x) };
-                            *o = q.clamp(0, 127) as i8;
+                            *o = cq.store(q);
                         }
                     }
                 }
@@ -296,7 +331,7 @@ pub struct CostVolume<'a> {
     reference: &'a [i8],
     sources: [SourceView<'a>; 2],
     views: usize,
-    requant: Requant,
+    cq: CostRequant,
     /// Two views: `clamp(MBQM((v0 − v1)²))` at index `v0 − v1 + 255` (`0..=510`; the last
     /// entry is never read, it makes the index mask `& 511` exact).
     table: [i8; 512],
@@ -308,7 +343,7 @@ impl<'a> CostVolume<'a> {
         shape: &CostShape,
         reference: &'a [i8],
         sources: &[SourceView<'a>],
-        requant: Requant,
+        cq: CostRequant,
     ) -> Result<Self, KernelError> {
         let vol = shape
             .channels
@@ -317,7 +352,7 @@ impl<'a> CostVolume<'a> {
             .and_then(|x| x.checked_mul(shape.width))
             .ok_or(KernelError::SizeOverflow)?;
         // `check` wants an output slice of the volume's length; only its length is read.
-        check_lengths_only(shape, reference, sources, requant, vol)?;
+        check_lengths_only(shape, reference, sources, cq, vol)?;
         if shape.width > MAX_WIDTH {
             return Err(KernelError::SizeOverflow);
         }
@@ -334,10 +369,10 @@ impl<'a> CostVolume<'a> {
             reference,
             sources: views,
             views: sources.len(),
-            requant,
+            cq,
             table: core::array::from_fn(|i| {
                 let d = i as i32 - 255;
-                requant.apply(d * d).clamp(0, 127) as i8
+                cq.store(cq.requant.apply(d * d))
             }),
         })
     }
@@ -414,8 +449,9 @@ impl<'a> CostVolume<'a> {
             return Ok(());
         }
         let src1 = &self.sources[1].features[span];
-        let fast = self.requant.fits_fast(9 * 128 * 128);
-        let frq = FastRequant::new(self.requant);
+        let requant = self.cq.requant;
+        let fast = requant.fits_fast(9 * 128 * 128);
+        let frq = FastRequant::new(requant);
         for (((out_r, ref_r), s0r), s1r) in out
             .chunks_exact_mut(width)
             .zip(reference.chunks_exact(width))
@@ -428,12 +464,8 @@ impl<'a> CostVolume<'a> {
                 let v2 = taps[1][b].warp(s1r);
                 let sum = v0 + v1 + v2;
                 let x = 3 * (v0 * v0 + v1 * v1 + v2 * v2) - sum * sum;
-                let q = if fast {
-                    frq.apply(x)
-                } else {
-                    self.requant.apply(x)
-                };
-                *o = q.clamp(0, 127) as i8;
+                let q = if fast { frq.apply(x) } else { requant.apply(x) };
+                *o = self.cq.store(q);
             }
         }
         Ok(())
@@ -445,10 +477,10 @@ fn check_lengths_only(
     shape: &CostShape,
     reference: &[i8],
     sources: &[SourceView<'_>],
-    requant: Requant,
+    cq: CostRequant,
     output_len: usize,
 ) -> Result<(), KernelError> {
-    check_inner(shape, reference, sources, requant, output_len)
+    check_inner(shape, reference, sources, cq, output_len)
 }
 
 #[cfg(test)]
@@ -504,16 +536,20 @@ mod tests {
                 },
             ];
             let n_src = 1 + case % 2;
-            let rq = Requant {
-                multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
-                shift: rng.range(-14, 0) as i32,
+            let zero_point = CostRequant::ZERO_POINTS[(case / 2) % 2];
+            let rq = CostRequant {
+                requant: Requant {
+                    multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
+                    shift: rng.range(-14, 0) as i32,
+                },
+                zero_point,
             };
             let len = feat * shape.planes;
             let (mut a, mut o) = (vec![0i8; len], vec![1i8; len]);
             cost_volume_s8_plain(&shape, &reference, &views[..n_src], rq, &mut a).unwrap();
             cost_volume_s8(&shape, &reference, &views[..n_src], rq, &mut o).unwrap();
             assert_eq!(a, o, "case {case} {shape:?}");
-            assert!(a.iter().all(|&v| v >= 0));
+            assert!(a.iter().all(|&v| v as i32 >= zero_point));
             // Piece by piece: every (channel, plane, row range) of the prepared volume.
             let cv = CostVolume::new(&shape, &reference, &views[..n_src], rq).unwrap();
             let (h, w) = (shape.height, shape.width);
@@ -554,8 +590,11 @@ mod tests {
                 warp: &config::WARP_TABLES[1],
             },
         ];
-        let rq = Requant::from_real(1.0 / 512.0).unwrap();
-        for n in 1..=2 {
+        for (n, zero_point) in [(1, 0), (2, 0), (1, -128), (2, -128)] {
+            let rq = CostRequant {
+                requant: Requant::from_real(1.0 / 512.0).unwrap(),
+                zero_point,
+            };
             let (mut a, mut o) = (
                 vec![0i8; config::COST_VOLUME_LEN],
                 vec![0i8; config::COST_VOLUME_LEN],
@@ -590,9 +629,32 @@ mod tests {
             warp: &table,
         }];
         let mut out = vec![1i8; 120];
-        let rq = Requant::from_real(1.0).unwrap();
-        cost_volume_s8(&shape, &f, &v, rq, &mut out).unwrap();
-        assert!(out.iter().all(|&x| x == 0));
+        for zero_point in CostRequant::ZERO_POINTS {
+            let rq = CostRequant {
+                requant: Requant::from_real(1.0).unwrap(),
+                zero_point,
+            };
+            cost_volume_s8(&shape, &f, &v, rq, &mut out).unwrap();
+            assert!(out.iter().all(|&x| x as i32 == zero_point));
+        }
+        let rq = CostRequant {
+            requant: Requant::from_real(1.0).unwrap(),
+            zero_point: 0,
+        };
+        // Only the two zero points of the contract are accepted.
+        assert_eq!(
+            cost_volume_s8(
+                &shape,
+                &f,
+                &v,
+                CostRequant {
+                    zero_point: -1,
+                    ..rq
+                },
+                &mut out
+            ),
+            Err(KernelError::CostZeroPoint { zero_point: -1 })
+        );
         // α = 256 reads the right neighbour exactly.
         let mut bad = table.clone();
         bad[4].fraction = 1;

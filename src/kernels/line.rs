@@ -145,13 +145,12 @@ pub(crate) enum SkipLut<'a> {
     InPlace(&'a [i32; 256]),
 }
 
-/// `MBQM(q, skip multiplier)` for every int8 `q` (index `q as u8`).
+/// `MBQM(q + offset, skip multiplier)` for every int8 `q` (index `q as u8`).
 pub(crate) fn skip_table(skip: &Skip<'_>) -> Option<[i32; 256]> {
-    let rq = match *skip {
-        Skip::None => return None,
-        Skip::Separate { requant, .. } | Skip::InPlace { requant } => requant,
-    };
-    Some(core::array::from_fn(|u| rq.apply(u as u8 as i8 as i32)))
+    let (rq, offset) = skip.requant()?;
+    Some(core::array::from_fn(|u| {
+        rq.apply(u as u8 as i8 as i32 + offset)
+    }))
 }
 
 pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> SkipLut<'a> {

@@ -144,10 +144,16 @@ pub enum KernelError {
     /// [`CheckedParams`] used with a kernel size, channel counts or direction other than the
     /// ones their bound was verified for.
     ParamsShape,
-    /// `input_offset` outside `−MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET`.
+    /// `input_offset` (or a skip offset) outside `−MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET`.
     InputOffset {
         /// The offset given.
         offset: i32,
+    },
+    /// A cost-volume zero point other than 0 or −128
+    /// ([`cost_volume_s8::CostRequant::ZERO_POINTS`]).
+    CostZeroPoint {
+        /// The zero point given.
+        zero_point: i32,
     },
 }
 
@@ -229,13 +235,31 @@ pub enum Skip<'a> {
         skip: &'a [i8],
         /// `m_skip = s_skip / s_y`.
         requant: Requant,
+        /// Added to each skip value before its requantisation: 128 for an unsigned cost
+        /// volume (zero point −128), else 0.
+        offset: i32,
     },
     /// The output slice holds the skip tensor on entry and is overwritten voxel by voxel
     /// (each output voxel reads only its own skip value, so this is exact).
     InPlace {
         /// `m_skip = s_skip / s_y`.
         requant: Requant,
+        /// Added to each skip value before its requantisation (as in [`Skip::Separate`]).
+        offset: i32,
     },
+}
+
+impl Skip<'_> {
+    /// The skip multiplier and offset, or `None` without a skip.
+    pub fn requant(&self) -> Option<(Requant, i32)> {
+        match *self {
+            Skip::None => None,
+            Skip::Separate {
+                requant, offset, ..
+            }
+            | Skip::InPlace { requant, offset } => Some((requant, offset)),
+        }
+    }
 }
 
 /// Worst-case `|accumulator|`, over every int8 input and every partial sum, of one output
@@ -406,38 +430,38 @@ impl<'a> CheckedParams<'a> {
     }
 }
 
-/// Checks a per-tensor skip multiplier against int8 skip values.
+/// Checks a per-tensor skip multiplier and offset against int8 skip values.
 pub(crate) fn check_skip(skip: &Skip<'_>, output_len: usize) -> Result<(), KernelError> {
-    let rq = match *skip {
-        Skip::None => return Ok(()),
-        Skip::Separate { skip, requant } => {
-            expect(Operand::Skip, output_len, skip.len())?;
-            requant
-        }
-        Skip::InPlace { requant } => requant,
+    if let Skip::Separate { skip, .. } = *skip {
+        expect(Operand::Skip, output_len, skip.len())?;
+    }
+    let Some((rq, offset)) = skip.requant() else {
+        return Ok(());
     };
+    if !(-MAX_INPUT_OFFSET..=MAX_INPUT_OFFSET).contains(&offset) {
+        return Err(KernelError::InputOffset { offset });
+    }
     if !rq.shift_in_range() {
         return Err(KernelError::Shift {
             channel: 0,
             shift: rq.shift,
         });
     }
-    if !rq.fits(128) {
-        return Err(KernelError::AccumulatorOverflow {
-            channel: 0,
-            bound: 128,
-        });
+    let bound = 128 + offset.unsigned_abs() as i64;
+    if !rq.fits(bound) {
+        return Err(KernelError::AccumulatorOverflow { channel: 0, bound });
     }
     Ok(())
 }
 
-/// `t` → output value: ReLU, then the skip add and the int8 clamp.
+/// `t` → output value: ReLU, then the skip add (`u`, the requantised skip value) and the
+/// int8 clamp.
 #[inline(always)]
-pub(crate) fn finish(t: i32, relu: bool, skip: Option<(i8, Requant)>) -> i8 {
+pub(crate) fn finish(t: i32, relu: bool, u: Option<i32>) -> i8 {
     let t = if relu { t.max(0) } else { t };
-    let y = match skip {
+    let y = match u {
         // Saturation only acts far outside int8, so it cannot change the clamped result.
-        Some((s, rq)) => t.saturating_add(rq.apply(s as i32)),
+        Some(u) => t.saturating_add(u),
         None => t,
     };
     y.clamp(-128, 127) as i8
@@ -750,7 +774,10 @@ mod no_panic {
             let _ = conv2d_s8_plain(&shape, input, &params, &mut out);
             let _ = conv3d_s8(&shape, input, &params, &mut out);
             let _ = conv3d_s8_plain(&shape, input, &params, &mut out);
-            let skip = Skip::InPlace { requant: rq[0] };
+            let skip = Skip::InPlace {
+                requant: rq[0],
+                offset: [0, 128, i32::MIN][rng.below(3)],
+            };
             let _ = conv_transpose3d_s8(&shape, input, &params, skip, &mut out);
             let _ = conv_transpose3d_s8_plain(&shape, input, &params, Skip::None, &mut out);
             let sp = SoftArgmaxParams {
@@ -784,8 +811,12 @@ mod no_panic {
                 warp: &table[..rng.below(16)],
             }; 3];
             let nv = rng.below(4);
-            let _ = cost_volume_s8(&cs, input, &views[..nv], rq[0], &mut out);
-            let _ = cost_volume_s8_plain(&cs, input, &views[..nv], rq[0], &mut out);
+            let cq = CostRequant {
+                requant: rq[0],
+                zero_point: [0, -128, 5][rng.below(3)],
+            };
+            let _ = cost_volume_s8(&cs, input, &views[..nv], cq, &mut out);
+            let _ = cost_volume_s8_plain(&cs, input, &views[..nv], cq, &mut out);
         }
     }
 
@@ -803,7 +834,7 @@ mod no_panic {
             warp: &[],
         }];
         assert_eq!(
-            cost_volume_s8(&cs, &f, &views, Requant::default(), &mut []),
+            cost_volume_s8(&cs, &f, &views, CostRequant::default(), &mut []),
             Ok(())
         );
         let ss = SoftArgmaxShape {

@@ -33,8 +33,8 @@ use crate::kernels::{
     check_layer_bounds, conv2d_s8::conv2d_s8, conv2d_s8::conv2d_s8_checked, conv3d_s8::conv3d_s8,
     conv3d_s8::conv3d_s8_checked, conv_transpose3d_s8::conv_transpose3d_s8,
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
-    cost_volume_s8::CostShape, cost_volume_s8::CostVolume, cost_volume_s8::SourceView,
-    head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
+    cost_volume_s8::CostRequant, cost_volume_s8::CostShape, cost_volume_s8::CostVolume,
+    cost_volume_s8::SourceView, head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
     soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
     soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
     ConvShape, KernelError, Skip,
@@ -105,6 +105,11 @@ struct LayerParams<'a> {
     bias: [i32; MAX_CHANNELS],
     requant: [Requant; MAX_CHANNELS],
     skip: Requant,
+    /// Added to every input value: 128 for the network input and for d1 when the cost volume
+    /// is unsigned (zero point −128), else 0.
+    input_offset: i32,
+    /// Added to every skip value: 128 when the skip is an unsigned cost volume, else 0.
+    skip_offset: i32,
     /// Worst-case accumulator ([`check_layer_bounds`]), verified in [`Model::from_blob`].
     bound: i64,
 }
@@ -113,9 +118,17 @@ struct LayerParams<'a> {
 #[derive(Clone, Debug)]
 pub struct Model<'a> {
     layers: [LayerParams<'a>; config::LAYER_COUNT],
-    /// Cost-volume requantisation for 2 and 3 views.
-    cost: [Requant; 2],
+    /// Cost-volume requantisation for 2 and 3 views (one zero point).
+    cost: [CostRequant; 2],
     exp: [u16; 256],
+}
+
+/// The blob tensor holding the cost volume's zero point (optional: 0 when absent).
+pub const COST_ZERO_POINT_TENSOR: &str = "cost.zp";
+
+/// True for the layer that reads the cost volume as its input (d1) or as its skip (u0).
+fn reads_cost(index: usize, l: &LayerShape) -> (bool, bool) {
+    (index == D1, matches!(l.skip, Some(s) if str_eq(s, "cost")))
 }
 
 fn name_buf(layer: &str, suffix: &str) -> heapless::String<24> {
@@ -132,7 +145,8 @@ fn valid_multiplier(r: Requant) -> bool {
 /// The tensors a blob for the compiled configuration holds, as `(name, dtype, elements)`:
 /// `<layer>.w` int8 weights (canonical layout), `<layer>.b` int32 biases, `<layer>.m` and
 /// `<layer>.s` int32 per-channel multipliers and shifts, `<layer>.k` int32 `[multiplier,
-/// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `exp` u16 `[256]`.
+/// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `cost.zp` int32 `[zero point]`
+/// (0 or −128; a blob without it has zero point 0, as every blob before it), `exp` u16 `[256]`.
 pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     use crate::blob::Dtype;
     for l in LAYERS.iter() {
@@ -145,6 +159,7 @@ pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
         }
     }
     f("cost.rq", Dtype::I32, 4);
+    f(COST_ZERO_POINT_TENSOR, Dtype::I32, 1);
     f("exp", Dtype::U16, 256);
 }
 
@@ -154,16 +169,50 @@ impl<'a> Model<'a> {
     /// checked; any failure is an error and nothing is half-built.
     pub fn from_blob(bytes: &'a [u8]) -> Result<Self, Error> {
         let blob = Blob::parse(bytes, config::SPEC_HASH)?;
+        let mut c = [0i32; 4];
+        blob.read_i32("cost.rq", &mut c)?;
+        let mut zero_point = [0i32; 1];
+        match blob.read_i32(COST_ZERO_POINT_TENSOR, &mut zero_point) {
+            Ok(()) | Err(BlobError::MissingTensor) => {}
+            Err(e) => return Err(e.into()),
+        }
+        let cost = [(c[0], c[1]), (c[2], c[3])].map(|(multiplier, shift)| CostRequant {
+            requant: Requant { multiplier, shift },
+            zero_point: zero_point[0],
+        });
+        if !cost[0].zero_point_valid() {
+            return Err(Error::Kernel(KernelError::CostZeroPoint {
+                zero_point: zero_point[0],
+            }));
+        }
+        // X ≤ 3·3·128² < 2^18 for any int8 features.
+        if !cost.iter().all(|r| {
+            let r = r.requant;
+            valid_multiplier(r) && r.shift_in_range() && r.fits(1 << 18)
+        }) {
+            return Err(Error::BadMultiplier { index: usize::MAX });
+        }
+        // The stored cost plus this is the real code (`0..=255` or `0..=127`).
+        let cost_offset = -zero_point[0];
         let empty = LayerParams {
             weights: &[],
             bias: [0; MAX_CHANNELS],
             requant: [Requant::default(); MAX_CHANNELS],
             skip: Requant::default(),
+            input_offset: 0,
+            skip_offset: 0,
             bound: 0,
         };
         let mut layers = [empty; config::LAYER_COUNT];
         for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
             let oc = l.out_channels;
+            let (cost_input, cost_skip) = reads_cost(index, l);
+            p.input_offset = match (index, cost_input) {
+                (0, _) => INPUT_OFFSET,
+                (_, true) => cost_offset,
+                _ => 0,
+            };
+            p.skip_offset = if cost_skip { cost_offset } else { 0 };
             p.weights = blob.i8_tensor(&name_buf(l.name, ".w"), l.weight_len())?;
             blob.read_i32(&name_buf(l.name, ".b"), &mut p.bias[..oc])?;
             let mut m = [0i32; MAX_CHANNELS];
@@ -186,12 +235,14 @@ impl<'a> Model<'a> {
                     multiplier: k[0],
                     shift: k[1],
                 };
-                // The skip input is int8, so |q| · 2^left must stay below 2^31.
-                if !valid_multiplier(p.skip) || !p.skip.shift_in_range() || !p.skip.fits(128) {
+                // The skip input is int8 plus its offset, so |q + offset| · 2^left must stay
+                // below 2^31.
+                let bound = 128 + p.skip_offset.unsigned_abs() as i64;
+                if !valid_multiplier(p.skip) || !p.skip.shift_in_range() || !p.skip.fits(bound) {
                     return Err(Error::BadMultiplier { index });
                 }
             }
-            let params = layer_params(l, p, index);
+            let params = layer_params(l, p);
             let bound = check_layer_bounds(
                 &ConvShape::from(l),
                 &params,
@@ -203,31 +254,18 @@ impl<'a> Model<'a> {
             }
             p.bound = bound;
         }
-        let mut c = [0i32; 4];
-        blob.read_i32("cost.rq", &mut c)?;
-        let cost = [
-            Requant {
-                multiplier: c[0],
-                shift: c[1],
-            },
-            Requant {
-                multiplier: c[2],
-                shift: c[3],
-            },
-        ];
-        // X ≤ 3·3·128² < 2^18 for any int8 features.
-        if !cost
-            .iter()
-            .all(|r| valid_multiplier(*r) && r.shift_in_range() && r.fits(1 << 18))
-        {
-            return Err(Error::BadMultiplier { index: usize::MAX });
-        }
         let mut exp = [0u16; 256];
         blob.read_u16("exp", &mut exp)?;
         if exp[0] == 0 {
             return Err(Error::Blob(BlobError::ShapeMismatch));
         }
         Ok(Self { layers, cost, exp })
+    }
+
+    /// The cost volume's zero point: the stored value of a zero variance (0, or −128 for the
+    /// unsigned cost volume the quantiser writes; QUANTISATION.md "Warp and cost volume").
+    pub fn cost_zero_point(&self) -> i32 {
+        self.cost[0].zero_point
     }
 
     /// Layer `index`'s parameters with the accumulator bound verified in
@@ -237,7 +275,7 @@ impl<'a> Model<'a> {
         let p = &self.layers[index];
         CheckedParams::verified(
             &ConvShape::from(l),
-            layer_params(l, p, index),
+            layer_params(l, p),
             matches!(l.kind, LayerKind::ConvTranspose3d),
             p.bound,
             Some(index),
@@ -254,13 +292,21 @@ impl<'a> Model<'a> {
     }
 }
 
-fn layer_params<'p>(l: &LayerShape, p: &'p LayerParams<'_>, index: usize) -> ConvParams<'p> {
+fn layer_params<'p>(l: &LayerShape, p: &'p LayerParams<'_>) -> ConvParams<'p> {
     ConvParams {
         weights: p.weights,
         bias: &p.bias[..l.out_channels],
         requant: &p.requant[..l.out_channels],
-        input_offset: if index == 0 { INPUT_OFFSET } else { 0 },
+        input_offset: p.input_offset,
         relu: l.relu,
+    }
+}
+
+/// A layer's skip operand, in place in its output buffer.
+fn skip_in_place(p: &LayerParams<'_>) -> Skip<'static> {
+    Skip::InPlace {
+        requant: p.skip,
+        offset: p.skip_offset,
     }
 }
 

@@ -154,7 +154,7 @@ impl<'a> Model<'a> {
             }
             st.filled - d
         };
-        let params = layer_params(layer, &self.layers[l], l);
+        let params = layer_params(layer, &self.layers[l]);
         let checked = self.checked(l);
         // Padding is the value that the input offset turns into 0.
         let pad = (-params.input_offset) as i8;
@@ -275,7 +275,7 @@ impl<'a> Model<'a> {
                 LayerKind::Conv3d => conv3d_s8_checked(&shape, src, &checked, dst, scratch)?,
                 LayerKind::ConvTranspose3d => {
                     let skip = if l.skip.is_some() {
-                        Skip::InPlace { requant: p.skip }
+                        skip_in_place(p)
                     } else {
                         Skip::None
                     };
@@ -366,9 +366,11 @@ impl<'a> Model<'a> {
         shape.out_size = [1, D1_ROWS, out_width];
         shape.padding[0] = 0;
         shape.padding[1] = 0;
+        // Padding is the stored cost that d1's input offset turns into 0 (the zero point).
+        let pad = (-self.layers[D1].input_offset) as i8;
         for y in 0..COST_ROW_CHUNKS {
             let row_lo = (sh * y * D1_ROWS) as isize - ph;
-            // Cost-volume rows of this tile that exist (the rest is padding: zeros).
+            // Cost-volume rows of this tile that exist (the rest is padding).
             let r0 = row_lo.max(0) as usize;
             let r1 = ((row_lo + rows as isize).max(0) as usize).min(height);
             let (mut lo, mut held) = (0isize, 0usize);
@@ -392,14 +394,14 @@ impl<'a> Model<'a> {
                         let at = window.start + (c * kd + held) * slot;
                         let out = &mut buf[at..at + slot];
                         if j < 0 || j as usize >= planes || r1 <= r0 {
-                            out.fill(0);
+                            out.fill(pad);
                             continue;
                         }
                         let top = r0 as isize - row_lo;
                         let (pad_top, rest) = out.split_at_mut(top as usize * width);
-                        pad_top.fill(0);
+                        pad_top.fill(pad);
                         let (real, pad_bottom) = rest.split_at_mut((r1 - r0) * width);
-                        pad_bottom.fill(0);
+                        pad_bottom.fill(pad);
                         cost.rows(c, j as usize, r0..r1, real)?;
                     }
                     held += 1;
@@ -477,11 +479,9 @@ impl<'a> Model<'a> {
         let in_plane = in_rows * in_width;
         let (u1_start, _) = unet_range(PLAN.0[U0 - 1]);
         let checked = self.checked(U0);
-        let skip = Skip::InPlace {
-            requant: self.layers[U0].skip,
-        };
+        let skip = skip_in_place(&self.layers[U0]);
         let head = &LAYERS[HEAD];
-        let head_params = layer_params(head, &self.layers[HEAD], HEAD);
+        let head_params = layer_params(head, &self.layers[HEAD]);
         let mut head_shape = ConvShape::from(head);
         head_shape.in_size[0] = 1;
         head_shape.out_size[0] = head.kernel[0] as usize;

@@ -60,7 +60,7 @@ impl<'a> Model<'a> {
         }
         let mut bufs = [a, b];
         for (i, l) in LAYERS.iter().enumerate().take(FEATURE_LAYERS) {
-            let params = layer_params(l, &self.layers[i], i);
+            let params = layer_params(l, &self.layers[i]);
             let shape = ConvShape::from(l);
             let last = i + 1 == FEATURE_LAYERS;
             let [a, b] = &mut bufs;
@@ -122,7 +122,7 @@ impl<'a> Model<'a> {
         };
         for (i, l) in LAYERS.iter().enumerate().skip(FEATURE_LAYERS) {
             let p = &self.layers[i];
-            let params = layer_params(l, p, i);
+            let params = layer_params(l, p);
             let shape = ConvShape::from(l);
             let out = PLAN.0[i];
             if out == Region::Depth {
@@ -147,7 +147,7 @@ impl<'a> Model<'a> {
                 LayerKind::Conv3d => conv3d_s8(&shape, src, &params, dst)?,
                 LayerKind::ConvTranspose3d => {
                     let skip = if l.skip.is_some() {
-                        Skip::InPlace { requant: p.skip }
+                        skip_in_place(p)
                     } else {
                         Skip::None
                     };

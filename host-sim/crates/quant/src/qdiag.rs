@@ -1,7 +1,8 @@
 //! `host-sim qdiag`: where does the int8 model lose accuracy?
 //!
 //! The float reference ([`epssn_reference::floatref`]) is run with chosen tensors rounded to the int8 grid
-//! the quantiser gave them (`round(x / s)` clamped to `[-128, 127]`, times `s`), and with the
+//! the quantiser gave them (`round(x / s)` clamped to `[-128, 127]`, the cost volume's to its
+//! codes `[0, 127 − zero point]`, times `s`), and with the
 //! weights rounded to their per-channel int8 grid. Each row quantises one thing alone, and the
 //! whole model with everything but that one thing, so the table shows both what a tensor costs
 //! on its own and what fixing it would buy. The last row is the real int8 library. Figures are
@@ -36,11 +37,11 @@ pub struct QdiagArgs {
     pub json: bool,
 }
 
-/// Rounds `x` to the symmetric int8 grid of scale `s`.
-pub fn fake_quant(x: &mut [f32], s: f64) {
+/// Rounds `x` to the int8 grid of scale `s` whose codes (real value / `s`) span `codes`.
+pub fn fake_quant(x: &mut [f32], s: f64, codes: (f32, f32)) {
     let s = s as f32;
     for v in x {
-        *v = (*v / s).round().clamp(-128.0, 127.0) * s;
+        *v = (*v / s).round().clamp(codes.0, codes.1) * s;
     }
 }
 
@@ -102,6 +103,15 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
         .with_context(|| format!("reading the blob in {}", args.weights.display()))?;
     let model =
         epssn::model::Model::from_blob(&blob).map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
+    // The codes a tensor's int8 values stand for: the cost volume's follow its zero point.
+    let cost_zero = model.cost_zero_point();
+    let codes = |name: &str| -> (f32, f32) {
+        if name == "cost" {
+            (0.0, (127 - cost_zero) as f32)
+        } else {
+            (-128.0, 127.0)
+        }
+    };
 
     let dirs = epssn_sim::dataset::sample_dirs(&args.data, epssn_sim::scene::Split::Test)?;
     ensure!(!dirs.is_empty(), "no samples under {}", args.data.display());
@@ -148,7 +158,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
     let folded_q = fake_quant_weights(&folded, &scales);
     let views_n = crate::quantise::trained_views(&args.weights)?;
     // Per sample: (diff from float, MAE vs GT) per config, then the library's.
-    let per_sample: Vec<Vec<(f64, f64)>> = dirs
+    let per_sample: Vec<Vec<(f64, f64, f64)>> = dirs
         .par_iter()
         .map(|d| -> Result<_> {
             let s = epssn_sim::dataset::Sample::load(d)?;
@@ -162,7 +172,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
                 let mut hook = |name: &str, x: &mut [f32]| {
                     if c.tensors.iter().any(|t| t == name) {
                         if let Some(&sc) = scales.get(name) {
-                            fake_quant(x, sc);
+                            fake_quant(x, sc, codes(name));
                         }
                     }
                 };
@@ -183,26 +193,28 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
         .iter()
         .map(|c| c.label.clone())
         .chain(["int8 library".to_string()]);
-    let table: Vec<(String, f64, f64)> = labels
+    let table: Vec<(String, f64, f64, f64)> = labels
         .enumerate()
         .map(|(i, label)| {
             // Samples with an empty mask (NaN) do not count.
-            let valid: Vec<(f64, f64)> = per_sample
+            let valid: Vec<(f64, f64, f64)> = per_sample
                 .iter()
                 .map(|rows| rows[i])
-                .filter(|(d, m)| d.is_finite() && m.is_finite())
+                .filter(|(d, m, _)| d.is_finite() && m.is_finite())
                 .collect();
             let k = valid.len().max(1) as f64;
-            let (d, m) = valid
-                .iter()
-                .fold((0.0, 0.0), |(d, m), (a, b)| (d + a / k, m + b / k));
-            (label, d, m)
+            let (d, m, a) = valid.iter().fold((0.0, 0.0, 0.0), |(d, m, a), (x, y, z)| {
+                (d + x / k, m + y / k, a + z / k)
+            });
+            (label, d, m, a)
         })
         .collect();
     if args.json {
         let rows: Vec<_> = table
             .iter()
-            .map(|(l, d, m)| serde_json::json!({"config": l, "vs_float_mm": d, "mae_mm": m}))
+            .map(|(l, d, m, a)| {
+                serde_json::json!({"config": l, "vs_float_mm": d, "mae_mm": m, "mae_all_pixels_mm": a})
+            })
             .collect();
         println!(
             "{}",
@@ -214,20 +226,24 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
         );
     } else {
         println!(
-            "{} samples of {}; depth |int8 − float| and MAE vs ground truth over the mask, mm",
+            "{} samples of {}; depth |int8 − float| and MAE vs ground truth over the mask, and the paper's MAE over all pixels, mm",
             per_sample.len(),
             args.data.join("test").display()
         );
-        println!("{:<24} {:>10} {:>10}", "quantised", "vs float", "MAE");
-        for (l, d, m) in &table {
-            println!("{l:<24} {d:>10.2} {m:>10.2}");
+        println!(
+            "{:<24} {:>10} {:>10} {:>10}",
+            "quantised", "vs float", "MAE", "MAE all"
+        );
+        for (l, d, m, a) in &table {
+            println!("{l:<24} {d:>10.2} {m:>10.2} {a:>10.2}");
         }
     }
     Ok(())
 }
 
-/// Mean |a − float| and mean |a − gt| over the mask, in mm (NaN for an empty mask).
-fn diff_and_mae(a: &[f32], float: &[f32], gt: &[f32], mask: &[bool]) -> Result<(f64, f64)> {
+/// Mean |a − float| and mean |a − gt| over the mask (NaN for an empty mask), and the paper's
+/// MAE over every pixel, in mm.
+fn diff_and_mae(a: &[f32], float: &[f32], gt: &[f32], mask: &[bool]) -> Result<(f64, f64, f64)> {
     ensure!(a.len() == float.len() && a.len() == gt.len() && a.len() == mask.len());
     let (mut d, mut e, mut n) = (0f64, 0f64, 0usize);
     for i in 0..a.len() {
@@ -238,7 +254,8 @@ fn diff_and_mae(a: &[f32], float: &[f32], gt: &[f32], mask: &[bool]) -> Result<(
         }
     }
     let k = 1000.0 / n as f64;
-    Ok((d * k, e * k))
+    let clamped = epssn_sim::metrics::clamp_labels(gt);
+    Ok((d * k, e * k, epssn_sim::metrics::mae(a, &clamped, None)?))
 }
 
 #[cfg(test)]
@@ -248,7 +265,11 @@ mod tests {
     #[test]
     fn fake_quant_rounds_to_the_grid_and_saturates() {
         let mut x = [0.26f32, -0.24, 100.0, -100.0, 0.0];
-        fake_quant(&mut x, 0.5);
+        fake_quant(&mut x, 0.5, (-128.0, 127.0));
         assert_eq!(x, [0.5, -0.0, 63.5, -64.0, 0.0]);
+        // The unsigned cost volume's codes.
+        let mut x = [0.26f32, -0.24, 100.0, 200.0];
+        fake_quant(&mut x, 0.5, (0.0, 255.0));
+        assert_eq!(x, [0.5, 0.0, 100.0, 127.5]);
     }
 }

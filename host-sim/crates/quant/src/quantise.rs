@@ -90,11 +90,27 @@ pub struct Quantised {
     pub layers: Vec<LayerReport>,
     /// Real cost-volume multipliers for 2 and 3 views.
     pub cost_multipliers: [f64; 2],
+    /// The cost volume's zero point ([`COST_ZERO_POINT`]).
+    pub cost_zero_point: i32,
     /// Spec hash the blob carries.
     pub spec_hash: u32,
     /// The blob.
     #[serde(skip)]
     pub blob: Vec<u8>,
+}
+
+/// The cost volume's zero point: the variance is never negative, so its int8 codes hold
+/// `0..=255` stored as `q − 128` (QUANTISATION.md "Warp and cost volume"), twice the
+/// resolution of the signed `0..=127`.
+pub const COST_ZERO_POINT: i32 = -128;
+
+/// Largest code of a tensor: 255 for the unsigned cost volume, 127 for every other tensor.
+pub fn top_code(name: &str) -> f64 {
+    if name == "cost" {
+        (127 - COST_ZERO_POINT) as f64
+    } else {
+        127.0
+    }
 }
 
 /// Quantises `weights` with activation scales from `ranges` (max |x| per tensor).
@@ -105,7 +121,7 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         if !(max.is_finite() && max > 0.0) {
             bail!("activation range of {name} is {max}: calibration failed");
         }
-        scales.insert(name.clone(), max / 127.0);
+        scales.insert(name.clone(), max / top_code(name));
     }
     let scale = |name: &str| -> Result<f64> {
         scales
@@ -161,10 +177,10 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
             weights: &qw,
             bias: &qb,
             requant: &rq,
-            input_offset: if index == 0 {
-                epssn::model::INPUT_OFFSET
-            } else {
-                0
+            input_offset: match index {
+                0 => epssn::model::INPUT_OFFSET,
+                i if i == feature_layers => -COST_ZERO_POINT,
+                _ => 0,
             },
             relu: l.relu,
         };
@@ -227,6 +243,11 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         Dtype::I32,
         i32_bytes(&[r2.multiplier, r2.shift, r3.multiplier, r3.shift]),
     ));
+    tensors.push((
+        epssn::model::COST_ZERO_POINT_TENSOR.into(),
+        Dtype::I32,
+        i32_bytes(&[COST_ZERO_POINT]),
+    ));
     let head = LAYERS[LAYERS.len() - 1].name;
     let exp = exp_table(scale(head)?);
     tensors.push((
@@ -253,6 +274,7 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         activation_scales: scales,
         layers: reports,
         cost_multipliers: [m2, m3],
+        cost_zero_point: COST_ZERO_POINT,
         spec_hash: config::SPEC_HASH,
         blob: out,
     })

@@ -168,7 +168,7 @@ pub fn conv(
 
 /// Transposed convolution in the scatter form: every input voxel adds `x · w[i, o, k]` to
 /// output `in·stride − pad + k` (dropped when outside). Then requantise, ReLU, optional skip
-/// add `u = MBQM(q_skip, M_skip)`, `y = clamp(t + u)`.
+/// add `u = MBQM(q_skip + skip_offset, M_skip)`, `y = clamp(t + u)`.
 #[allow(clippy::too_many_arguments)]
 pub fn conv_transpose(
     sh: &Shape,
@@ -178,7 +178,7 @@ pub fn conv_transpose(
     mults: &[Mult],
     input_offset: i32,
     relu: bool,
-    skip: Option<(&[i8], Mult)>,
+    skip: Option<(&[i8], Mult, i32)>,
 ) -> Vec<i8> {
     let [d, h, w] = sh.n_in;
     let [od, oh, ow] = sh.n_out;
@@ -239,8 +239,8 @@ pub fn conv_transpose(
             if relu {
                 t = t.max(0);
             }
-            if let Some((s, m)) = skip {
-                t += mbqm(s[idx] as i64, m);
+            if let Some((s, m, offset)) = skip {
+                t += mbqm(s[idx] as i64 + offset as i64, m);
             }
             clamp_i8(t)
         })
@@ -266,7 +266,9 @@ pub fn warp_value(f: &[i8], h: usize, w: usize, c: usize, r: usize, e: WarpEntry
 }
 
 /// Variance cost volume `[C][N][H][W]` from the reference `[C][H][W]` and 1 or 2 sources
-/// with their warp tables `[N][W]`: `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X), 0, 127)`.
+/// with their warp tables `[N][W]`: `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X), 0, 127 − z)`
+/// stored as `q + z` for the zero point `z` (0 or −128).
+#[allow(clippy::too_many_arguments)]
 pub fn cost_volume(
     reference: &[i8],
     sources: &[(&[i8], &[WarpEntry])],
@@ -275,7 +277,13 @@ pub fn cost_volume(
     h: usize,
     w: usize,
     mult: Mult,
+    zero_point: i32,
 ) -> Vec<i8> {
+    assert!(
+        zero_point == 0 || zero_point == -128,
+        "zero point {zero_point}"
+    );
+    let z = zero_point as i64;
     let n = sources.len() as i64 + 1;
     let mut out = vec![0i8; c * planes * h * w];
     for ch in 0..c {
@@ -290,7 +298,8 @@ pub fn cost_volume(
                     let sum_sq: i64 = vals.iter().map(|v| v * v).sum();
                     let x = n * sum_sq - sum * sum;
                     assert!(x >= 0);
-                    out[((ch * planes + j) * h + r) * w + b] = mbqm(x, mult).clamp(0, 127) as i8;
+                    out[((ch * planes + j) * h + r) * w + b] =
+                        (mbqm(x, mult).clamp(0, 127 - z) + z) as i8;
                 }
             }
         }

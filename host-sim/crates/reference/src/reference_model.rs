@@ -119,6 +119,12 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
             shift: c[3],
         }
     };
+    // The cost volume's zero point: 0 when the blob predates it.
+    let zero_point = match blob.read_i32("cost.zp", &mut c[..1]) {
+        Ok(()) => c[0],
+        Err(epssn::blob::BlobError::MissingTensor) => 0,
+        Err(e) => return Err(anyhow!("cost.zp: {e:?}")),
+    };
     let sources: Vec<(&[i8], &[epssn::geometry::WarpEntry])> = (1..n)
         .map(|k| (feats[k].as_slice(), &config::WARP_TABLES[k - 1][..]))
         .collect();
@@ -130,6 +136,7 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         config::FEATURE_RANGE_BINS,
         config::FEATURE_COLUMNS,
         mult,
+        zero_point,
     );
     trace.cost_net.insert("cost".into(), cost.clone());
     let mut x = cost;
@@ -137,7 +144,11 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         let p = &all[i];
         let sh = Shape::from(l);
         x = match l.kind {
-            LayerKind::Conv3d => intref::conv(&sh, &x, &p.w, &p.b, &p.m, 0, l.relu),
+            // The layer reading the cost volume adds its zero point back.
+            LayerKind::Conv3d => {
+                let offset = if i == feature_layers { -zero_point } else { 0 };
+                intref::conv(&sh, &x, &p.w, &p.b, &p.m, offset, l.relu)
+            }
             LayerKind::ConvTranspose3d => {
                 let skip = match (l.skip, p.skip) {
                     (Some(name), Some(m)) => Some((
@@ -158,7 +169,14 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
                     &p.m,
                     0,
                     l.relu,
-                    skip.as_ref().map(|(t, m)| (t.as_slice(), *m)),
+                    skip.as_ref().map(|(t, m)| {
+                        let offset = if l.skip == Some("cost") {
+                            -zero_point
+                        } else {
+                            0
+                        };
+                        (t.as_slice(), *m, offset)
+                    }),
                 )
             }
             LayerKind::Conv2d => return Err(anyhow!("2D layer {} in the cost net", l.name)),

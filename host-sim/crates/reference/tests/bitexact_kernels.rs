@@ -10,7 +10,9 @@ use epssn::kernels::conv3d_s8::{conv3d_s8, conv3d_s8_plain, conv3d_s8_rows};
 use epssn::kernels::conv_transpose3d_s8::{
     conv_transpose3d_s8, conv_transpose3d_s8_plain, conv_transpose3d_s8_taps,
 };
-use epssn::kernels::cost_volume_s8::{cost_volume_s8, cost_volume_s8_plain, CostShape, SourceView};
+use epssn::kernels::cost_volume_s8::{
+    cost_volume_s8, cost_volume_s8_plain, CostRequant, CostShape, SourceView,
+};
 use epssn::kernels::soft_argmax_s8::{
     soft_argmax_s8, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape,
 };
@@ -128,7 +130,7 @@ fn check_convt(
     input: &[i8],
     l: &Layer,
     relu: bool,
-    skip: Option<(&[i8], Mult)>,
+    skip: Option<(&[i8], Mult, i32)>,
     what: &str,
 ) -> Vec<i8> {
     let want = intref::conv_transpose(sh, input, &l.w, &l.b, &l.m, 0, relu, skip);
@@ -147,13 +149,15 @@ fn check_convt(
             outs.push(("plain", b));
             outs.push(("taps", c));
         }
-        Some((s, m)) => {
+        Some((s, m, offset)) => {
             let sep = Skip::Separate {
                 skip: s,
                 requant: requant(m),
+                offset,
             };
             let ip = Skip::InPlace {
                 requant: requant(m),
+                offset,
             };
             let (mut a, mut b) = (vec![0i8; n], vec![0i8; n]);
             conv_transpose3d_s8(&cs, input, &p, sep, &mut a).unwrap();
@@ -331,7 +335,7 @@ fn random_small_conv_transposes_with_and_without_skip() {
         let n = sh.cout * sh.n_out.iter().product::<usize>();
         let skip_t = rng.i8s(n);
         let sm = rng.mult(-2, 1);
-        let skip = (case % 2 == 0).then_some((skip_t.as_slice(), sm));
+        let skip = (case % 2 == 0).then_some((skip_t.as_slice(), sm, [0, 128][(case / 2) % 2]));
         check_convt(
             &sh,
             &input,
@@ -376,7 +380,16 @@ fn random_small_cost_volumes_soft_argmax_and_heads() {
             .collect();
         let n_src = 1 + case % 2;
         let m = rng.mult(-10, 0);
-        check_cost(&reference, &srcs, &tables, n_src, (c, planes, h, w), m);
+        let zero_point = [0, -128][(case / 2) % 2];
+        check_cost(
+            &reference,
+            &srcs,
+            &tables,
+            n_src,
+            (c, planes, h, w),
+            m,
+            zero_point,
+        );
 
         let (rows, bins, cols) = (1 + rng.below(3), 1 + rng.below(80), 1 + rng.below(90));
         let logits = rng.i8s(rows * bins * cols);
@@ -408,11 +421,12 @@ fn check_cost(
     n_src: usize,
     (c, planes, h, w): (usize, usize, usize, usize),
     m: Mult,
+    zero_point: i32,
 ) -> Vec<i8> {
     let pairs: Vec<(&[i8], &[WarpEntry])> = (0..n_src)
         .map(|k| (srcs[k].as_slice(), tables[k].as_slice()))
         .collect();
-    let want = intref::cost_volume(reference, &pairs, c, planes, h, w, m);
+    let want = intref::cost_volume(reference, &pairs, c, planes, h, w, m, zero_point);
     let views: Vec<SourceView> = pairs
         .iter()
         .map(|&(features, warp)| SourceView { features, warp })
@@ -423,9 +437,13 @@ fn check_cost(
         height: h,
         width: w,
     };
+    let cq = CostRequant {
+        requant: requant(m),
+        zero_point,
+    };
     let (mut a, mut b) = (vec![0i8; want.len()], vec![0i8; want.len()]);
-    cost_volume_s8(&shape, reference, &views, requant(m), &mut a).unwrap();
-    cost_volume_s8_plain(&shape, reference, &views, requant(m), &mut b).unwrap();
+    cost_volume_s8(&shape, reference, &views, cq, &mut a).unwrap();
+    cost_volume_s8_plain(&shape, reference, &views, cq, &mut b).unwrap();
     assert_eq!(
         a,
         want,
@@ -502,13 +520,24 @@ fn run_network(seed: u64, views: usize) {
             config::FEATURE_COLUMNS,
         ),
         cost_m,
+        // The unsigned cost volume the quantiser writes: d1 and u0's skip add 128 back.
+        -128,
     );
     assert!(distinct(&cost) > 20, "cost volume degenerate");
     let mut x = cost.clone();
     let mut d1_out = Vec::new();
     for name in ["d1", "d2", "m0"] {
         let l = layer(name);
-        x = check_conv(l.kind, &Shape::from(l), &x, &layers[name], 0, l.relu, name);
+        let offset = if name == "d1" { 128 } else { 0 };
+        x = check_conv(
+            l.kind,
+            &Shape::from(l),
+            &x,
+            &layers[name],
+            offset,
+            l.relu,
+            name,
+        );
         assert!(distinct(&x) > 10, "{name}: degenerate output");
         if name == "d1" {
             d1_out = x.clone();
@@ -521,7 +550,7 @@ fn run_network(seed: u64, views: usize) {
         &x,
         &layers["u1"],
         true,
-        Some((&d1_out, skip_m)),
+        Some((&d1_out, skip_m, 0)),
         "u1",
     );
     let u0 = layer("u0");
@@ -530,7 +559,7 @@ fn run_network(seed: u64, views: usize) {
         &x,
         &layers["u0"],
         true,
-        Some((&cost, skip_m)),
+        Some((&cost, skip_m, 128)),
         "u0",
     );
     assert!(distinct(&x) > 10, "u0: degenerate output");
@@ -597,7 +626,12 @@ fn every_epssn_s_layer_on_extreme_inputs_and_weights() {
             *w = if (i / 3) % 2 == 0 { 127 } else { -128 };
         }
         variants.push(("extreme weights", ext));
-        let offset = if l.name == "f0" { 128 } else { 0 };
+        // The network input and the unsigned cost volume (d1's input, u0's skip) add 128.
+        let offset = if l.name == "f0" || l.name == "d1" {
+            128
+        } else {
+            0
+        };
         for (wname, lp) in &variants {
             for (pname, input) in patterns(&mut rng, l.input_len()) {
                 let what = format!("{} {wname} {pname}", l.name);
@@ -612,7 +646,10 @@ fn every_epssn_s_layer_on_extreme_inputs_and_weights() {
                             m: i32::MAX,
                             shift: 1,
                         };
-                        let skip = l.skip.map(|_| (skip_in.as_slice(), sm));
+                        let skip = l.skip.map(|name| {
+                            let offset = if name == "cost" { 128 } else { 0 };
+                            (skip_in.as_slice(), sm, offset)
+                        });
                         check_convt(&sh, &input, lp, l.relu, skip, &what);
                         if l.name == "head" {
                             check_head(&sh, &input, lp, &intref::exp_table(0.03), &what);
@@ -647,7 +684,9 @@ fn cost_volume_with_real_warp_tables_on_extreme_features() {
                     },
                     rng.mult(-14, 0),
                 ] {
-                    check_cost(reference, &srcs, &tables, n_src, dims, m);
+                    for zero_point in [0, -128] {
+                        check_cost(reference, &srcs, &tables, n_src, dims, m, zero_point);
+                    }
                 }
             }
         }
@@ -659,10 +698,20 @@ fn cost_volume_with_real_warp_tables_on_extreme_features() {
         m: 1 << 30,
         shift: 1,
     };
-    let out = check_cost(&lo, &[hi.clone(), hi], &tables, 2, dims, one);
     // The reference alone already differs from an invisible (0) source by 128, so every
-    // voxel saturates, whatever the tables say.
-    assert!(out.iter().all(|&v| v == 127));
+    // voxel saturates, whatever the tables say: at 127 (code 127 or 255).
+    for zero_point in [0, -128] {
+        let out = check_cost(
+            &lo,
+            &[hi.clone(), hi.clone()],
+            &tables,
+            2,
+            dims,
+            one,
+            zero_point,
+        );
+        assert!(out.iter().all(|&v| v == 127));
+    }
 }
 
 #[test]
