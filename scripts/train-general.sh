@@ -5,11 +5,12 @@
 # HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
 # WEIGHTS=weights/paper trains into another folder; for another spec the binary must be built
 # from it (EPSSN_SPEC, docs/PAPER.md), as must the data (the simulator draws the spec's grid).
-# SEARCH_PASSES (default 2) sets the quantiser's search passes; INIT_FROM=weights/general starts
+# SEARCH_PASSES (default 3) and SEARCH_PIXELS (default all) set the quantiser's search passes and
+# the pixels it scores (the shipped blob's settings, chosen on the validation split with
+# CALIB_SAMPLES: docs/ACCURACY.md); INIT_FROM=weights/general starts
 # from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random;
 # LR sets the learning rate before its halving (default: the spec's), e.g. to fine-tune;
-# CALIB_SAMPLES (default 256, the shipped blob's, chosen on the validation split: docs/ACCURACY.md)
-# sets the quantiser's calibration samples.
+# CALIB_SAMPLES (default 256) sets the quantiser's calibration samples.
 # Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
 # does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
 # the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
@@ -19,7 +20,8 @@
 # with the same command (--resume).
 set -euo pipefail
 train_n=$1 test_n=$2 epochs=$3 root=${4:-out/epssn-data} spec=${5:-weights/epssn-s.json}
-weights=${WEIGHTS:-weights/general} passes=${SEARCH_PASSES:-2} calib_n=${CALIB_SAMPLES:-256}
+weights=${WEIGHTS:-weights/general} passes=${SEARCH_PASSES:-3} calib_n=${CALIB_SAMPLES:-256}
+pixels=${SEARCH_PIXELS:-all}
 val_n=${VAL_PER_SCENE:-100}
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
@@ -53,7 +55,7 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
   --val-limit $((3 * val_n)) --resume --out "$weights" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples "$calib_n" --percentile 99.99 \
-  --search --search-passes "$passes"
+  --search --search-passes "$passes" --search-pixels "$pixels"
 for scene in "${scenes[@]}"; do
   "${hs[@]}" eval --weights "$weights" --data "$root/$scene" --views 2 --json --int8 \
     >"$weights/eval-$scene.json"
