@@ -3,8 +3,9 @@
 //!
 //! Reference features `[C][H][W]` i8, one or two source feature maps of the same shape and
 //! scale, each with its range-independent warp table `[plane][W]`; output cost volume
-//! `[C][N][H][W]` i8 in `0..=127`. For source entry (`column` c, `fraction` α, `visible`):
-//! `w = (F[c]·(256 − α) + F[c+1]·α + 128) >> 8`, invisible → 0; with `n` views
+//! `[C][N][H][W]` i8 (codes per [`CostRequant`]'s zero point). For source entry (`column` c,
+//! `fraction` α, `visible`): `w = (F[c]·(256 − α) + F[c+1]·α + 128) >> 8`, invisible → 0; with
+//! `n` views
 //! `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X, M_n, shift_n), 0, 127 − z)` and the stored value
 //! `q + z`, where the zero point `z` ([`CostRequant`]) is 0 (`q` in `0..=127`) or −128 (the
 //! variance is never negative, so all 256 codes hold `0..=255`: twice the resolution).
@@ -72,7 +73,7 @@ impl CostRequant {
 
     /// True when the zero point is one of [`CostRequant::ZERO_POINTS`].
     pub const fn zero_point_valid(self) -> bool {
-        self.zero_point == 0 || self.zero_point == -128
+        self.zero_point == Self::ZERO_POINTS[0] || self.zero_point == Self::ZERO_POINTS[1]
     }
 }
 
@@ -246,8 +247,8 @@ const MAX_WIDTH: usize = 64;
 
 /// Optimised: each plane's warp entries become column/weight pairs once (no visibility
 /// test per voxel); with two views `X = (v0 − v1)²` depends only on `|v0 − v1| ≤ 255`, so
-/// `clamp(MBQM(X))` is a 256-entry table built once per call; three views use the fast
-/// requantisation when the bound allows it.
+/// the stored cost of `MBQM(X)` is a 256-entry table built once per call; three views use the
+/// fast requantisation when the bound allows it.
 pub fn cost_volume_s8(
     shape: &CostShape,
     reference: &[i8],
@@ -332,8 +333,9 @@ pub struct CostVolume<'a> {
     sources: [SourceView<'a>; 2],
     views: usize,
     cq: CostRequant,
-    /// Two views: `clamp(MBQM((v0 − v1)²))` at index `v0 − v1 + 255` (`0..=510`; the last
-    /// entry is never read, it makes the index mask `& 511` exact).
+    /// Two views: the stored cost of `MBQM((v0 − v1)²)` ([`CostRequant::store`]) at index
+    /// `v0 − v1 + 255` (`0..=510`; the last entry is never read, it makes the index mask
+    /// `& 511` exact).
     table: [i8; 512],
 }
 

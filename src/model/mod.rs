@@ -14,9 +14,11 @@
 //! volume's instructions) written first into the plane buffer and the transposed convolution
 //! added in place; each u0 plane goes straight through the head, which is fused with the
 //! soft-argmax so the `1 × E × R × A` logits volume never exists either. Only d1/u1, d2 and m0
-//! are whole. Sub-volumes carry explicit zero rows/planes where the whole tensor has padding,
-//! which adds exactly 0, so the bits equal those of the plain whole-tensor twin
-//! ([`WholeWorkspace`], [`Model::depth_from_features_whole_probed`]) that tests compare with.
+//! are whole. Sub-volumes carry explicit padding rows/planes where the whole tensor has
+//! padding (the stored form of a zero: 0, or the cost volume's zero point, which d1's input
+//! offset turns into 0), which adds exactly 0, so the bits equal those of the plain
+//! whole-tensor twin ([`WholeWorkspace`], [`Model::depth_from_features_whole_probed`]) that
+//! tests compare with.
 //!
 //! Modules: `plan` (the memory plan: regions, line buffers, tiles, workspace sizes, checked at
 //! compile time), `stream` (the streamed path the firmware runs, [`Workspace`]) and `whole` (the
