@@ -5,10 +5,9 @@
 //! scale, each with its range-independent warp table `[plane][W]`; output cost volume
 //! `[C][N][H][W]` i8 (codes per [`CostRequant`]'s zero point). For source entry (`column` c,
 //! `fraction` α, `visible`): `w = (F[c]·(256 − α) + F[c+1]·α + 128) >> 8`, invisible → 0; with
-//! `n` views
-//! `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X, M_n, shift_n), 0, 127 − z)` and the stored value
-//! `q + z`, where the zero point `z` ([`CostRequant`]) is 0 (`q` in `0..=127`) or −128 (the
-//! variance is never negative, so all 256 codes hold `0..=255`: twice the resolution).
+//! `n` views `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X, M_n, shift_n), 0, 127 − z)` and the
+//! stored value `q + z`, where the zero point `z` ([`CostRequant`]) is 0 (`q` in `0..=127`) or
+//! −128 (the variance is never negative, so all 256 codes hold `0..=255`: twice the resolution).
 //!
 //! Work: `C · N · H · W · (n + 2·(n − 1))` multiplies (n views; 2 per bilinear warp).
 
