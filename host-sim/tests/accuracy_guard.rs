@@ -71,10 +71,27 @@ fn shipped_model_keeps_its_accuracy_on_every_scene() {
             "--int8",
             "--float-reference",
             "--json",
+            "--breakdown",
         ]);
         let float = v["float"]["mae"].as_f64().unwrap();
         let int8 = v["int8"]["mae"].as_f64().unwrap();
         assert!(float.is_finite() && int8.is_finite(), "{scene}: {v}");
+        // The error by pixel class adds up to the all-pixel MAE (every map has H × W pixels,
+        // so pooling the pixels equals averaging the maps).
+        for (model, mae) in [("float", float), ("int8", int8)] {
+            let rows = v["breakdown"][model].as_array().unwrap();
+            let class_sum: f64 = rows
+                .iter()
+                .filter(|r| r["mae"].is_number())
+                .map(|r| r["pixel_share"].as_f64().unwrap() * r["mae"].as_f64().unwrap() / 100.0)
+                .sum();
+            let shares: f64 = rows
+                .iter()
+                .map(|r| r["error_share"].as_f64().unwrap())
+                .sum();
+            assert!((class_sum - mae).abs() < 1e-6 * mae, "{scene} {model}: {v}");
+            assert!((shares - 100.0).abs() < 1e-9, "{scene} {model}: {v}");
+        }
         measured.insert(
             scene.to_string(),
             serde_json::json!({ "float_mae": float, "int8_mae": int8 }),

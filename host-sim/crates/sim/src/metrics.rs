@@ -226,6 +226,97 @@ pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
     })
 }
 
+/// Pixel classes of [`ErrorBreakdown`], in its order.
+pub const ERROR_CLASSES: [&str; 4] = ["surface", "silhouette", "empty_far", "empty_near"];
+
+/// Where the paper's MAE comes from: the absolute depth error of a set of maps pooled by pixel
+/// class. `surface`: mask pixels whose four neighbours are all in the mask; `silhouette`: mask
+/// pixels with a neighbour outside it (the map's border does not count); `empty_far`: rays
+/// outside the mask whose label reads r_max (they meet nothing inside the window);
+/// `empty_near`: rays outside the mask whose label reads r_min. Labels are clamped as in
+/// [`evaluate`], so the four classes' errors add up to the all-pixel MAE's sum.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ErrorBreakdown {
+    /// Pixels per class.
+    pub pixels: [usize; 4],
+    /// Sum of |prediction − clamped label| per class, metres.
+    pub error_m: [f64; 4],
+}
+
+/// One class of an [`ErrorBreakdown`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ClassError {
+    /// The class ([`ERROR_CLASSES`]).
+    pub class: &'static str,
+    /// Its share of the pixels, %.
+    pub pixel_share: f64,
+    /// MAE over its pixels, mm (NaN without pixels).
+    pub mae: f64,
+    /// Its share of the all-pixel error, %.
+    pub error_share: f64,
+}
+
+impl ErrorBreakdown {
+    /// Adds one `[DEPTH_ROWS][DEPTH_COLUMNS]` map.
+    pub fn add(&mut self, pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<()> {
+        ensure!(
+            pred.len() == DEPTH_LEN && gt.len() == DEPTH_LEN && mask.len() == DEPTH_LEN,
+            "breakdown: maps must have {DEPTH_LEN} pixels (prediction {}, label {}, mask {})",
+            pred.len(),
+            gt.len(),
+            mask.len()
+        );
+        let gt = clamp_labels(gt);
+        let r_mid = ((R_MIN_M + R_MAX_M) / 2.0) as f32;
+        for e in 0..DEPTH_ROWS {
+            for a in 0..DEPTH_COLUMNS {
+                let i = e * DEPTH_COLUMNS + a;
+                let class = if mask[i] {
+                    let outside = |de: isize, da: isize| {
+                        let (y, x) = (e as isize + de, a as isize + da);
+                        (0..DEPTH_ROWS as isize).contains(&y)
+                            && (0..DEPTH_COLUMNS as isize).contains(&x)
+                            && !mask[y as usize * DEPTH_COLUMNS + x as usize]
+                    };
+                    if outside(-1, 0) || outside(1, 0) || outside(0, -1) || outside(0, 1) {
+                        1
+                    } else {
+                        0
+                    }
+                } else if gt[i] >= r_mid {
+                    2
+                } else {
+                    3
+                };
+                self.pixels[class] += 1;
+                self.error_m[class] += (pred[i] as f64 - gt[i] as f64).abs();
+            }
+        }
+        Ok(())
+    }
+
+    /// The classes' shares and MAEs.
+    pub fn rows(&self) -> Vec<ClassError> {
+        let pixels: usize = self.pixels.iter().sum();
+        let error: f64 = self.error_m.iter().sum();
+        let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { f64::NAN };
+        ERROR_CLASSES
+            .iter()
+            .enumerate()
+            .map(|(k, &class)| ClassError {
+                class,
+                pixel_share: pct(self.pixels[k] as f64, pixels as f64),
+                mae: if self.pixels[k] > 0 {
+                    MAE_SCALE * self.error_m[k] / self.pixels[k] as f64
+                } else {
+                    f64::NAN
+                },
+                error_share: pct(self.error_m[k], error),
+            })
+            .collect()
+    }
+}
+
 /// Writes an ASCII PLY point cloud (MeshLab opens it), optionally coloured.
 pub fn write_ply(path: &Path, points: &[[f64; 3]], colour: Option<[u8; 3]>) -> Result<()> {
     let mut s = String::new();
@@ -326,6 +417,50 @@ mod tests {
         assert!((chamfer(&b, &a).unwrap() - 260.0).abs() < 1e-9);
         assert_eq!(chamfer(&a, &a).unwrap(), 0.0);
         assert!(chamfer(&a, &[]).unwrap().is_nan());
+    }
+
+    #[test]
+    fn breakdown_classes_by_hand() {
+        // A 2 × 2 block of surface in the middle of an empty map: its 4 pixels are silhouette
+        // (each has an outside neighbour); one row of near rays; the rest far.
+        let mut gt = vec![R_MAX_M as f32 + 1.0; DEPTH_LEN];
+        let mut mask = vec![false; DEPTH_LEN];
+        for (e, a) in [(10, 20), (10, 21), (11, 20), (11, 21)] {
+            gt[e * DEPTH_COLUMNS + a] = 2.5;
+            mask[e * DEPTH_COLUMNS + a] = true;
+        }
+        for v in &mut gt[..DEPTH_COLUMNS] {
+            *v = R_MIN_M as f32 - 0.5;
+        }
+        let mut pred = clamp_labels(&gt);
+        pred[10 * DEPTH_COLUMNS + 20] += 0.1; // silhouette error 0.1
+        pred[DEPTH_COLUMNS] -= 0.2; // a far ray read 0.2 short
+        let mut b = ErrorBreakdown::default();
+        b.add(&pred, &gt, &mask).unwrap();
+        assert_eq!(
+            b.pixels,
+            [0, 4, DEPTH_LEN - 4 - DEPTH_COLUMNS, DEPTH_COLUMNS]
+        );
+        let rows = b.rows();
+        assert!(rows[0].mae.is_nan());
+        assert!((rows[1].mae - 1000.0 * 0.1 / 4.0).abs() < 1e-3);
+        assert!((rows[1].error_share - 100.0 / 3.0).abs() < 1e-3);
+        assert!((rows[2].error_share - 200.0 / 3.0).abs() < 1e-3);
+        // The classes add up to the all-pixel MAE.
+        let all = mae(&pred, &clamp_labels(&gt), None).unwrap();
+        let sum: f64 = b.error_m.iter().sum::<f64>() * 1000.0 / DEPTH_LEN as f64;
+        assert!((all - sum).abs() < 1e-6);
+        // A 4 × 4 block has a 2 × 2 interior.
+        let mut mask = vec![false; DEPTH_LEN];
+        for e in 4..8 {
+            for a in 4..8 {
+                mask[e * DEPTH_COLUMNS + a] = true;
+            }
+        }
+        let mut b = ErrorBreakdown::default();
+        b.add(&pred, &gt, &mask).unwrap();
+        assert_eq!(b.pixels[..2], [4, 12]);
+        assert!(b.add(&pred[1..], &gt, &mask).is_err());
     }
 
     #[test]

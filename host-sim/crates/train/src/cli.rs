@@ -100,6 +100,10 @@ pub struct EvalArgs {
     /// of the training backend and of the build profile.
     #[arg(long)]
     pub float_reference: bool,
+    /// Also report where the all-pixel error comes from: surface, silhouette, empty far and
+    /// empty near rays, pooled over the maps (`epssn_sim::metrics::ErrorBreakdown`).
+    #[arg(long)]
+    pub breakdown: bool,
 }
 
 /// One row of the loss history.
@@ -566,6 +570,10 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
     let (mut float_m, mut int8_m, mut q_diff, mut q_diff_mask) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut float_b, mut int8_b) = (
+        epssn_sim::metrics::ErrorBreakdown::default(),
+        epssn_sim::metrics::ErrorBreakdown::default(),
+    );
     let blob = if args.int8 {
         std::fs::read(weights.join(epssn_reference::weights::BLOB_FILE))
             .with_context(|| format!("reading the int8 blob in {}", weights.display()))?
@@ -609,6 +617,9 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
                 let dq = epssn_reference::int8::depth_metres(q, &s.views, &mut ws)?;
                 let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
                 int8_m.push(epssn_sim::metrics::evaluate(&dq, &s.depth, &mask)?);
+                if args.breakdown {
+                    int8_b.add(&dq, &s.depth, &mask)?;
+                }
                 let diff: f64 = dq.iter().zip(&d).map(|(a, b)| (a - b).abs() as f64).sum();
                 q_diff.push(1000.0 * diff / dq.len() as f64);
                 let (sum, n) = dq
@@ -627,6 +638,9 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             // (epssn_sim::metrics documents the exact formulas).
             let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
             float_m.push(epssn_sim::metrics::evaluate(&d, &s.depth, &mask)?);
+            if args.breakdown {
+                float_b.add(&d, &s.depth, &mask)?;
+            }
         }
     }
     let float = epssn_sim::metrics::Accuracy::of(&float_m);
@@ -645,7 +659,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             int8["int8_vs_float_mae"] = j["int8_vs_float_mae"].clone();
             int8["int8_vs_float_mae_mask"] = j["int8_vs_float_mae_mask"].clone();
         }
-        let j = serde_json::json!({
+        let mut j = serde_json::json!({
             "weights": weights.display().to_string(),
             "data": dir.display().to_string(),
             "views": views,
@@ -654,6 +668,13 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             "float": float,
             "int8": int8,
         });
+        if args.breakdown {
+            j["breakdown"] = serde_json::json!({
+                "classes": "surface: mask pixels with every 4-neighbour in the mask; silhouette: mask pixels with one outside; empty_far / empty_near: rays outside the mask labelled r_max / r_min. pixel_share and error_share in % (pooled over the maps), mae in mm",
+                "float": float_b.rows(),
+                "int8": args.int8.then(|| int8_b.rows()),
+            });
+        }
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
         println!(
@@ -671,6 +692,22 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
                 j["int8_vs_float_mae"].as_f64().unwrap_or(f64::NAN),
                 j["int8_vs_float_mae_mask"].as_f64().unwrap_or(f64::NAN),
             );
+        }
+        if args.breakdown {
+            let models = [
+                ("float", Some(&float_b)),
+                ("int8", args.int8.then_some(&int8_b)),
+            ];
+            for (name, b) in models {
+                let Some(b) = b else { continue };
+                println!("{name} error by pixel class (pooled): class, pixels %, MAE mm, error %");
+                for r in b.rows() {
+                    println!(
+                        "  {:<11} {:>6.1} {:>8.2} {:>6.1}",
+                        r.class, r.pixel_share, r.mae, r.error_share
+                    );
+                }
+            }
         }
     }
     Ok(())
