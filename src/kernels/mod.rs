@@ -447,11 +447,17 @@ pub(crate) fn check_skip(skip: &Skip<'_>, output_len: usize) -> Result<(), Kerne
             shift: rq.shift,
         });
     }
-    let bound = 128 + offset.unsigned_abs() as i64;
+    let bound = skip_value_bound(offset);
     if !rq.fits(bound) {
         return Err(KernelError::AccumulatorOverflow { channel: 0, bound });
     }
     Ok(())
+}
+
+/// Largest `|q + offset|` of an int8 skip value `q` with `offset` added (what the skip
+/// multiplier's left shift must survive).
+pub(crate) const fn skip_value_bound(offset: i32) -> i64 {
+    128 + offset.unsigned_abs() as i64
 }
 
 /// `t` → output value: ReLU, then the skip add (`u`, the requantised skip value) and the

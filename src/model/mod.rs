@@ -37,7 +37,7 @@ use crate::kernels::{
     conv_transpose3d_s8::conv_transpose3d_s8_checked, cost_volume_s8::cost_volume_s8,
     cost_volume_s8::CostRequant, cost_volume_s8::CostShape, cost_volume_s8::CostVolume,
     cost_volume_s8::SourceView, head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
-    soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
+    skip_value_bound, soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
     soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
     ConvShape, KernelError, Skip,
 };
@@ -128,9 +128,26 @@ pub struct Model<'a> {
 /// The blob tensor holding the cost volume's zero point (optional: 0 when absent).
 pub const COST_ZERO_POINT_TENSOR: &str = "cost.zp";
 
-/// True for the layer that reads the cost volume as its input (d1) or as its skip (u0).
-fn reads_cost(index: usize, l: &LayerShape) -> (bool, bool) {
-    (index == D1, matches!(l.skip, Some(s) if str_eq(s, "cost")))
+/// The offset layer `index` adds to every input value (QUANTISATION.md): 128 for the network
+/// input ([`INPUT_OFFSET`]), `−cost_zero_point` for d1, which reads the cost volume, else 0.
+/// The model and the quantiser (its accumulator bounds) both take it from here.
+pub const fn layer_input_offset(index: usize, cost_zero_point: i32) -> i32 {
+    if index == 0 {
+        INPUT_OFFSET
+    } else if index == D1 {
+        -cost_zero_point
+    } else {
+        0
+    }
+}
+
+/// The offset a layer adds to every skip value before requantising it: `−cost_zero_point`
+/// when its skip is the cost volume (u0), else 0.
+pub const fn layer_skip_offset(l: &LayerShape, cost_zero_point: i32) -> i32 {
+    match l.skip {
+        Some(s) if str_eq(s, "cost") => -cost_zero_point,
+        _ => 0,
+    }
 }
 
 fn name_buf(layer: &str, suffix: &str) -> heapless::String<24> {
@@ -194,8 +211,6 @@ impl<'a> Model<'a> {
         }) {
             return Err(Error::BadMultiplier { index: usize::MAX });
         }
-        // The stored cost plus this is the real code (`0..=255` or `0..=127`).
-        let cost_offset = -zero_point[0];
         let empty = LayerParams {
             weights: &[],
             bias: [0; MAX_CHANNELS],
@@ -208,13 +223,8 @@ impl<'a> Model<'a> {
         let mut layers = [empty; config::LAYER_COUNT];
         for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
             let oc = l.out_channels;
-            let (cost_input, cost_skip) = reads_cost(index, l);
-            p.input_offset = match (index, cost_input) {
-                (0, _) => INPUT_OFFSET,
-                (_, true) => cost_offset,
-                _ => 0,
-            };
-            p.skip_offset = if cost_skip { cost_offset } else { 0 };
+            p.input_offset = layer_input_offset(index, zero_point[0]);
+            p.skip_offset = layer_skip_offset(l, zero_point[0]);
             p.weights = blob.i8_tensor(&name_buf(l.name, ".w"), l.weight_len())?;
             blob.read_i32(&name_buf(l.name, ".b"), &mut p.bias[..oc])?;
             let mut m = [0i32; MAX_CHANNELS];
@@ -237,9 +247,9 @@ impl<'a> Model<'a> {
                     multiplier: k[0],
                     shift: k[1],
                 };
-                // The skip input is int8 plus its offset, so |q + offset| · 2^left must stay
+                // The skip input is int8 plus its offset: |q + offset| · 2^left must stay
                 // below 2^31.
-                let bound = 128 + p.skip_offset.unsigned_abs() as i64;
+                let bound = skip_value_bound(p.skip_offset);
                 if !valid_multiplier(p.skip) || !p.skip.shift_in_range() || !p.skip.fits(bound) {
                     return Err(Error::BadMultiplier { index });
                 }

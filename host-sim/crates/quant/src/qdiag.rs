@@ -103,14 +103,11 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
         .with_context(|| format!("reading the blob in {}", args.weights.display()))?;
     let model =
         epssn::model::Model::from_blob(&blob).map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
-    // The codes a tensor's int8 values stand for: the cost volume's follow its zero point.
+    // The codes a tensor's int8 values stand for: the cost volume's follow the blob's zero point.
     let cost_zero = model.cost_zero_point();
-    let codes = |name: &str| -> (f32, f32) {
-        if name == "cost" {
-            (0.0, (127 - cost_zero) as f32)
-        } else {
-            (-128.0, 127.0)
-        }
+    let codes = |name: &str| {
+        let (lo, hi) = crate::quantise::codes(name, cost_zero);
+        (lo as f32, hi as f32)
     };
 
     let dirs = epssn_sim::dataset::sample_dirs(&args.data, epssn_sim::scene::Split::Test)?;

@@ -104,13 +104,21 @@ pub struct Quantised {
 /// resolution of the signed `0..=127`.
 pub const COST_ZERO_POINT: i32 = -128;
 
-/// Largest code of a tensor: 255 for the unsigned cost volume, 127 for every other tensor.
-pub fn top_code(name: &str) -> f64 {
+/// The codes (real value / scale) a tensor's int8 values stand for: `0..=127 − z` for the cost
+/// volume with zero point `z` (`0..=255` for the unsigned one), `−128..=127` for every other
+/// tensor.
+pub fn codes(name: &str, cost_zero_point: i32) -> (f64, f64) {
     if name == "cost" {
-        (127 - COST_ZERO_POINT) as f64
+        (0.0, (127 - cost_zero_point) as f64)
     } else {
-        127.0
+        (-128.0, 127.0)
     }
+}
+
+/// Largest code of a tensor as this quantiser writes it: 255 for the cost volume, 127 for the
+/// rest.
+pub fn top_code(name: &str) -> f64 {
+    codes(name, COST_ZERO_POINT).1
 }
 
 /// Quantises `weights` with activation scales from `ranges` (max |x| per tensor).
@@ -177,11 +185,7 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
             weights: &qw,
             bias: &qb,
             requant: &rq,
-            input_offset: match index {
-                0 => epssn::model::INPUT_OFFSET,
-                i if i == feature_layers => -COST_ZERO_POINT,
-                _ => 0,
-            },
+            input_offset: epssn::model::layer_input_offset(index, COST_ZERO_POINT),
             relu: l.relu,
         };
         let bound = epssn::kernels::check_layer_bounds(
