@@ -90,6 +90,25 @@ fn params<'a>(l: &'a Layer, input_offset: i32, relu: bool) -> ConvParams<'a> {
     }
 }
 
+/// What a layer adds to its inputs (QUANTISATION.md): 128 for the network input (f0) and for
+/// the unsigned cost volume (d1 reads it), else 0.
+fn input_offset(layer: &str) -> i32 {
+    if layer == "f0" || layer == "d1" {
+        128
+    } else {
+        0
+    }
+}
+
+/// What a layer adds to its skip values: 128 when the skip is the unsigned cost volume.
+fn skip_offset(skip: &str) -> i32 {
+    if skip == "cost" {
+        128
+    } else {
+        0
+    }
+}
+
 /// Library (optimised and plain) vs reference for a forward convolution; returns the output.
 fn check_conv(
     kind: LayerKind,
@@ -488,13 +507,12 @@ fn run_network(seed: u64, views: usize) {
         let mut x = rng.i8s(config::INPUT_LEN);
         for name in ["f0", "f1", "f2", "f3"] {
             let l = layer(name);
-            let offset = if name == "f0" { 128 } else { 0 };
             x = check_conv(
                 l.kind,
                 &Shape::from(l),
                 &x,
                 &layers[name],
-                offset,
+                input_offset(name),
                 l.relu,
                 name,
             );
@@ -528,13 +546,12 @@ fn run_network(seed: u64, views: usize) {
     let mut d1_out = Vec::new();
     for name in ["d1", "d2", "m0"] {
         let l = layer(name);
-        let offset = if name == "d1" { 128 } else { 0 };
         x = check_conv(
             l.kind,
             &Shape::from(l),
             &x,
             &layers[name],
-            offset,
+            input_offset(name),
             l.relu,
             name,
         );
@@ -550,7 +567,7 @@ fn run_network(seed: u64, views: usize) {
         &x,
         &layers["u1"],
         true,
-        Some((&d1_out, skip_m, 0)),
+        Some((&d1_out, skip_m, skip_offset("d1"))),
         "u1",
     );
     let u0 = layer("u0");
@@ -559,7 +576,7 @@ fn run_network(seed: u64, views: usize) {
         &x,
         &layers["u0"],
         true,
-        Some((&cost, skip_m, 128)),
+        Some((&cost, skip_m, skip_offset("cost"))),
         "u0",
     );
     assert!(distinct(&x) > 10, "u0: degenerate output");
@@ -626,12 +643,7 @@ fn every_epssn_s_layer_on_extreme_inputs_and_weights() {
             *w = if (i / 3) % 2 == 0 { 127 } else { -128 };
         }
         variants.push(("extreme weights", ext));
-        // The network input and the unsigned cost volume (d1's input, u0's skip) add 128.
-        let offset = if l.name == "f0" || l.name == "d1" {
-            128
-        } else {
-            0
-        };
+        let offset = input_offset(l.name);
         for (wname, lp) in &variants {
             for (pname, input) in patterns(&mut rng, l.input_len()) {
                 let what = format!("{} {wname} {pname}", l.name);
@@ -646,10 +658,9 @@ fn every_epssn_s_layer_on_extreme_inputs_and_weights() {
                             m: i32::MAX,
                             shift: 1,
                         };
-                        let skip = l.skip.map(|name| {
-                            let offset = if name == "cost" { 128 } else { 0 };
-                            (skip_in.as_slice(), sm, offset)
-                        });
+                        let skip = l
+                            .skip
+                            .map(|name| (skip_in.as_slice(), sm, skip_offset(name)));
                         check_convt(&sh, &input, lp, l.relu, skip, &what);
                         if l.name == "head" {
                             check_head(&sh, &input, lp, &intref::exp_table(0.03), &what);

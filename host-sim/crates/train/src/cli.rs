@@ -613,9 +613,9 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             None => model.predict_batch(&refs)?,
         };
         for (s, d) in chunk.iter().zip(float_maps) {
+            let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
             if let Some(q) = &int8 {
                 let dq = epssn_reference::int8::depth_metres(q, &s.views, &mut ws)?;
-                let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
                 int8_m.push(epssn_sim::metrics::evaluate(&dq, &s.depth, &mask)?);
                 if args.breakdown {
                     int8_b.add(&dq, &s.depth, &mask)?;
@@ -636,7 +636,6 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             }
             // The paper's MAE (all pixels, labels clamped), the masked MAE and the CD
             // (epssn_sim::metrics documents the exact formulas).
-            let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
             float_m.push(epssn_sim::metrics::evaluate(&d, &s.depth, &mask)?);
             if args.breakdown {
                 float_b.add(&d, &s.depth, &mask)?;
