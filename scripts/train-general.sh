@@ -11,6 +11,9 @@
 # from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random;
 # LR sets the learning rate before its halving (default: the spec's), e.g. to fine-tune;
 # CALIB_SAMPLES (default 256) sets the quantiser's calibration samples.
+# VIEWS=3 trains a three-view model (rolls 0, +7, +14 degrees; give it a DATA_ROOT of its own,
+# the data are simulated with the third view): the manifest and the blob record the count, and
+# eval, run and the firmware's pairing follow it.
 # Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
 # does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
 # the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
@@ -22,6 +25,7 @@ set -euo pipefail
 train_n=$1 test_n=$2 epochs=$3 root=${4:-out/epssn-data} spec=${5:-weights/epssn-s.json}
 weights=${WEIGHTS:-weights/general} passes=${SEARCH_PASSES:-3} calib_n=${CALIB_SAMPLES:-256}
 pixels=${SEARCH_PIXELS:-all}
+views=(${VIEWS:+--views "$VIEWS"})
 val_n=${VAL_PER_SCENE:-100}
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
@@ -32,11 +36,11 @@ scenes=(sphere terrain artificial)
 have() { [ -d "$1/$(printf %06d $(($2 - 1)))" ]; }
 for scene in "${scenes[@]}"; do
   have "$root/$scene/train" "$train_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$root/$scene" --no-preview
+    "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}"
   have "$root/$scene/test" "$test_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$test_n" --seed 1 --out "$root/$scene" --no-preview
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$test_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}"
   have "$root/$scene-val/test" "$val_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$val_n" --seed 2 --out "$root/$scene-val" --no-preview
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$val_n" --seed 2 --out "$root/$scene-val" --no-preview "${views[@]}"
 done
 mix=$root/general
 rm -rf "$mix" && mkdir -p "$mix/train" "$mix/val"
@@ -53,10 +57,10 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 # --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
-  --val-limit $((3 * val_n)) --resume --out "$weights" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"}
+  --val-limit $((3 * val_n)) --resume --out "$weights" "${views[@]}" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples "$calib_n" --percentile 99.99 \
   --search --search-passes "$passes" --search-pixels "$pixels"
 for scene in "${scenes[@]}"; do
-  "${hs[@]}" eval --weights "$weights" --data "$root/$scene" --views 2 --json --int8 \
+  "${hs[@]}" eval --weights "$weights" --data "$root/$scene" --json --int8 \
     >"$weights/eval-$scene.json"
 done

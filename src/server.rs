@@ -155,7 +155,7 @@ impl<'a> Server<'a> {
         };
         self.status.frames = self.status.frames.wrapping_add(1);
         // No candidate, or one the gate rejected: a status reply that says which and why.
-        let set = match self.cache.find_checked(&newest, config::VIEWS) {
+        let set = match self.cache.find_checked(&newest, self.model.views()) {
             Some(Ok(set)) => set,
             found => {
                 self.status.pair = found.and_then(|r| r.err());

@@ -20,7 +20,9 @@ fn quantised_blob(seed: u64) -> Vec<u8> {
         })
         .collect();
     let ranges = epssn_quant::calibration::SortedMagnitudes::new(&calib).ranges(100.0);
-    quantise::quantise(&weights, &ranges).unwrap().blob
+    quantise::quantise(&weights, &ranges, epssn::config::VIEWS)
+        .unwrap()
+        .blob
 }
 
 /// Runs the library's whole-tensor path and its streamed path and the reference on `views`;
@@ -240,24 +242,7 @@ fn streamed_path_equals_whole_tensor_path() {
 
 /// `blob` rewritten with its cost-volume zero point tensor removed (`None`) or set.
 fn with_cost_zero_point(blob: &[u8], zero_point: Option<i32>) -> Vec<u8> {
-    let parsed = epssn::blob::Blob::parse(blob, config::SPEC_HASH).unwrap();
-    let name = epssn::model::COST_ZERO_POINT_TENSOR;
-    let z = zero_point.map(|z| z.to_le_bytes());
-    let tensors: Vec<(&str, epssn::blob::Dtype, &[u8])> = (0..parsed.tensor_count())
-        .filter_map(|i| parsed.entry(i))
-        .filter_map(|e| {
-            let n = std::str::from_utf8(e.name).unwrap();
-            match (n == name, &z) {
-                (false, _) => Some((n, e.dtype, e.bytes)),
-                (true, Some(z)) => Some((n, e.dtype, &z[..])),
-                (true, None) => None,
-            }
-        })
-        .collect();
-    let mut out = vec![0u8; blob.len() + 64];
-    let n = epssn::blob::write_blob(config::SPEC_HASH, &tensors, &mut out).unwrap();
-    out.truncate(n);
-    out
+    epssn_tests::with_i32_tensor(blob, epssn::model::COST_ZERO_POINT_TENSOR, zero_point)
 }
 
 /// The quantiser writes the unsigned cost volume (zero point −128); blobs written before it
@@ -283,4 +268,37 @@ fn cost_zero_points_old_new_and_invalid() {
             "zero point {bad}"
         );
     }
+}
+
+/// The blob records the views its model was trained for (the server pairs sets of that size);
+/// a blob without the tensor has the spec's, and counts the library cannot run are refused.
+#[test]
+fn views_tensor_trained_default_and_invalid() {
+    let blob = quantised_blob(23);
+    assert_eq!(Model::from_blob(&blob).unwrap().views(), config::VIEWS);
+    let name = epssn::model::VIEWS_TENSOR;
+    let three = epssn_tests::with_i32_tensor(&blob, name, Some(3));
+    assert_eq!(Model::from_blob(&three).unwrap().views(), 3);
+    let old = epssn_tests::with_i32_tensor(&blob, name, None);
+    assert_eq!(Model::from_blob(&old).unwrap().views(), config::VIEWS);
+    for bad in [i32::MIN, -2, 0, 1, config::MAX_VIEWS as i32 + 1, i32::MAX] {
+        assert_eq!(
+            Model::from_blob(&epssn_tests::with_i32_tensor(&blob, name, Some(bad))).unwrap_err(),
+            epssn::model::Error::Views { views: bad },
+            "views {bad}"
+        );
+    }
+    // The quantiser writes the count it is given and refuses one the library cannot run.
+    let weights = epssn_tests::random_float_weights(23);
+    let mut rng = Rng(24);
+    let a = synthetic_image(&mut rng, 0.2);
+    let b = synthetic_image(&mut rng, 0.3);
+    let c = synthetic_image(&mut rng, 0.4);
+    let trace = floatref::run(&weights, &[&a, &b, &c]).unwrap();
+    let ranges = epssn_quant::calibration::SortedMagnitudes::new(&[trace]).ranges(100.0);
+    let q = quantise::quantise(&weights, &ranges, 3).unwrap();
+    assert_eq!(q.views, 3);
+    assert_eq!(Model::from_blob(&q.blob).unwrap().views(), 3);
+    assert!(quantise::quantise(&weights, &ranges, 4).is_err());
+    assert!(quantise::quantise(&weights, &ranges, 1).is_err());
 }

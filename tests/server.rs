@@ -501,3 +501,45 @@ fn the_pose_gate_rejects_a_yawed_source_and_reports_why() {
     );
     assert_eq!(got[3], status(3, 1, 0));
 }
+
+/// A blob trained for three views makes the server wait for a third frame (+2 roll steps) and
+/// answer with the three-view depth map, bit for bit the integer reference's.
+#[test]
+fn a_three_view_blob_pairs_three_frames() {
+    let blob = epssn_tests::with_i32_tensor(&blob(), epssn::model::VIEWS_TENSOR, Some(3));
+    assert_eq!(Model::from_blob(&blob).unwrap().views(), 3);
+    let mut rng = Rng(31);
+    let images: Vec<Vec<u8>> = (0..3)
+        .map(|k| synthetic_image(&mut rng, 0.3 * k as f64))
+        .collect();
+    let mut msgs: Vec<Message<'_>> = images
+        .iter()
+        .enumerate()
+        .map(|(k, image)| {
+            frame(
+                k as u32 + 1,
+                (k as f64 * config::ROLL_STEP_DEG) as f32,
+                image,
+            )
+        })
+        .collect();
+    msgs.push(Message::Shutdown { seq: 4 });
+    let (got, _) = serve(&blob, wire(&msgs));
+    let views: Vec<&[u8]> = images.iter().map(|v| v.as_slice()).collect();
+    let expected = epssn_reference::reference_model::run(&blob, &views)
+        .unwrap()
+        .depth;
+    assert_eq!(
+        got,
+        vec![
+            status(1, 0, 0),
+            status(2, 0, 0),
+            Reply::Depth {
+                reference: 1,
+                sources: vec![2, 3],
+                bits: expected,
+            },
+            status(3, 1, 0),
+        ]
+    );
+}

@@ -38,9 +38,10 @@ pub struct RunArgs {
     /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
     #[arg(long)]
     pub weights: Option<PathBuf>,
-    /// Views per depth map (2 or 3).
-    #[arg(long, default_value_t = 2)]
-    pub views: usize,
+    /// Views per depth map (2 or 3); default: the count the weights were trained for (the
+    /// blob's `views`, else the spec's).
+    #[arg(long)]
+    pub views: Option<usize>,
     /// Pair frames by index instead of by roll, `REF:SRC` (repeatable), for recordings
     /// without rotator roll. The roll between them is assumed to be the baseline.
     #[arg(long = "pair", value_parser = parse_pair)]
@@ -240,8 +241,16 @@ fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
 
 /// Runs `host-sim run`.
 pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
+    let weights_dir = match &args.weights {
+        Some(w) => w.clone(),
+        None => weights::firmware_weights_dir()?,
+    };
+    let bundle = weights::load(&weights_dir)?;
+    let model = Model::from_blob(&bundle.blob)
+        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
+    let views = args.views.unwrap_or(model.views());
     ensure!(
-        (2..=config::MAX_VIEWS).contains(&args.views),
+        (2..=config::MAX_VIEWS).contains(&views),
         "--views must be 2..={}",
         config::MAX_VIEWS
     );
@@ -260,10 +269,6 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
                 ))
             })
     });
-    let weights_dir = match &args.weights {
-        Some(w) => w.clone(),
-        None => weights::firmware_weights_dir()?,
-    };
     let reader =
         ArisReader::open(&recording).with_context(|| format!("opening {}", recording.display()))?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
@@ -276,7 +281,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         );
     }
     // Too few frames for one depth map: the reader's warnings (truncation, FrameCount) say why.
-    let needed = if args.pairs.is_empty() { args.views } else { 2 };
+    let needed = if args.pairs.is_empty() { views } else { 2 };
     if reader.frame_count() < needed {
         bail!(
             "{} holds {} complete frame(s), a depth map needs {needed}{}",
@@ -297,7 +302,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         .collect();
     let mut candidates = Vec::new();
     let groups: Vec<Vec<usize>> = if args.pairs.is_empty() {
-        candidates = pair_by_roll(&rolls, args.views)
+        candidates = pair_by_roll(&rolls, views)
             .iter()
             .map(|g| gate(g, &rolls, &attitudes))
             .collect();
@@ -319,8 +324,8 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             .collect()
     } else {
         ensure!(
-            args.views == 2,
-            "--pair gives two-view pairs; drop --views 3"
+            views == 2,
+            "--pair gives two-view pairs, and these weights take {views} views"
         );
         warnings.push(format!(
             "pairs given by index: the roll between them is assumed to be the {} ° baseline",
@@ -365,9 +370,6 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             }
         );
     }
-    let bundle = weights::load(&weights_dir)?;
-    let model = Model::from_blob(&bundle.blob)
-        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
     std::fs::create_dir_all(&args.out)?;
 
     // Each frame's polar image is computed once; the library computes each group's features

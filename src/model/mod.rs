@@ -78,6 +78,11 @@ pub enum Error {
     },
     /// Source views given: 1 or 2 are supported (`MAX_VIEWS − 1`).
     SourceCount(usize),
+    /// The blob's view count (its [`VIEWS_TENSOR`]) is outside `2..=MAX_VIEWS`.
+    Views {
+        /// The value the blob holds.
+        views: i32,
+    },
     /// An input image or feature map has the wrong length.
     InputLength {
         /// Expected elements.
@@ -122,11 +127,19 @@ pub struct Model<'a> {
     layers: [LayerParams<'a>; config::LAYER_COUNT],
     /// Cost-volume requantisation for 2 and 3 views (one zero point).
     cost: [CostRequant; 2],
+    /// Views the model was trained and calibrated for.
+    views: usize,
     exp: [u16; 256],
 }
 
 /// The blob tensor holding the cost volume's zero point (optional: 0 when absent).
 pub const COST_ZERO_POINT_TENSOR: &str = "cost.zp";
+
+/// The blob tensor holding the number of views the model was trained and calibrated for
+/// (optional: the spec's `views` when absent). A model is best on its own view count (a 3-view
+/// model fed 2 views is far worse than a 2-view one, docs/ACCURACY.md), so the server pairs
+/// frames into sets of this size.
+pub const VIEWS_TENSOR: &str = "views";
 
 /// The offset layer `index` adds to every input value (QUANTISATION.md): 128 for the network
 /// input ([`INPUT_OFFSET`]), `−cost_zero_point` for d1, which reads the cost volume, else 0.
@@ -165,7 +178,8 @@ fn valid_multiplier(r: Requant) -> bool {
 /// `<layer>.w` int8 weights (canonical layout), `<layer>.b` int32 biases, `<layer>.m` and
 /// `<layer>.s` int32 per-channel multipliers and shifts, `<layer>.k` int32 `[multiplier,
 /// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `cost.zp` int32 `[zero point]`
-/// (0 or −128; a blob without it has zero point 0, as every blob before it), `exp` u16 `[256]`.
+/// (0 or −128; a blob without it has zero point 0, as every blob before it), `views` int32
+/// `[views trained for]` (2..=MAX_VIEWS; a blob without it has the spec's), `exp` u16 `[256]`.
 pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     use crate::blob::Dtype;
     for l in LAYERS.iter() {
@@ -179,6 +193,7 @@ pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     }
     f("cost.rq", Dtype::I32, 4);
     f(COST_ZERO_POINT_TENSOR, Dtype::I32, 1);
+    f(VIEWS_TENSOR, Dtype::I32, 1);
     f("exp", Dtype::U16, 256);
 }
 
@@ -203,6 +218,14 @@ impl<'a> Model<'a> {
             return Err(Error::Kernel(KernelError::CostZeroPoint {
                 zero_point: zero_point[0],
             }));
+        }
+        let mut views = [config::VIEWS as i32; 1];
+        match blob.read_i32(VIEWS_TENSOR, &mut views) {
+            Ok(()) | Err(BlobError::MissingTensor) => {}
+            Err(e) => return Err(e.into()),
+        }
+        if !(2..=config::MAX_VIEWS as i32).contains(&views[0]) {
+            return Err(Error::Views { views: views[0] });
         }
         // X ≤ 3·3·128² < 2^18 for any int8 features.
         if !cost.iter().all(|r| {
@@ -271,13 +294,25 @@ impl<'a> Model<'a> {
         if exp[0] == 0 {
             return Err(Error::Blob(BlobError::ShapeMismatch));
         }
-        Ok(Self { layers, cost, exp })
+        Ok(Self {
+            layers,
+            cost,
+            views: views[0] as usize,
+            exp,
+        })
     }
 
     /// The cost volume's zero point: the stored value of a zero variance (0, or −128 for the
     /// unsigned cost volume the quantiser writes; QUANTISATION.md "Warp and cost volume").
     pub fn cost_zero_point(&self) -> i32 {
         self.cost[0].zero_point
+    }
+
+    /// The number of views the model was trained and calibrated for (the blob's
+    /// [`VIEWS_TENSOR`], else the spec's `views`): the view-set size the server pairs.
+    /// The kernels run 2 or 3 views with any model; other counts are out of its domain.
+    pub fn views(&self) -> usize {
+        self.views
     }
 
     /// Layer `index`'s parameters with the accumulator bound verified in

@@ -15,7 +15,7 @@
 use std::collections::BTreeMap;
 
 use anyhow::{anyhow, Result};
-use epssn::config::LAYERS;
+use epssn::config::{self, LAYERS};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -92,7 +92,9 @@ pub fn score(
     ranges: &ActivationRanges,
     samples: &[CalibSample],
 ) -> Result<Option<(f64, Quantised)>> {
-    let Ok(q) = quantise(weights, ranges) else {
+    // The blob's view count does not change its arithmetic: the samples' own views are scored.
+    let views = samples.first().map_or(config::VIEWS, |s| s.views.len());
+    let Ok(q) = quantise(weights, ranges, views) else {
         return Ok(None);
     };
     let model = epssn::model::Model::from_blob(&q.blob)

@@ -92,6 +92,8 @@ pub struct Quantised {
     pub cost_multipliers: [f64; 2],
     /// The cost volume's zero point ([`COST_ZERO_POINT`]).
     pub cost_zero_point: i32,
+    /// Views the model was trained for, written to the blob ([`epssn::model::VIEWS_TENSOR`]).
+    pub views: usize,
     /// Spec hash the blob carries.
     pub spec_hash: u32,
     /// The blob.
@@ -122,7 +124,18 @@ pub fn top_code(name: &str) -> f64 {
 }
 
 /// Quantises `weights` with activation scales from `ranges` (max |x| per tensor).
-pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Quantised> {
+/// `views`: the view count the model was trained for ([`trained_views`]), which the blob
+/// carries so that the firmware pairs frames into sets of that size.
+pub fn quantise(
+    weights: &FloatWeights,
+    ranges: &ActivationRanges,
+    views: usize,
+) -> Result<Quantised> {
+    ensure!(
+        (2..=config::MAX_VIEWS).contains(&views),
+        "views {views}: the int8 model runs 2..={}",
+        config::MAX_VIEWS
+    );
     let mut scales = BTreeMap::new();
     scales.insert("input".to_string(), 1.0 / 255.0);
     for (name, &max) in ranges {
@@ -252,6 +265,11 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         Dtype::I32,
         i32_bytes(&[COST_ZERO_POINT]),
     ));
+    tensors.push((
+        epssn::model::VIEWS_TENSOR.into(),
+        Dtype::I32,
+        i32_bytes(&[views as i32]),
+    ));
     let head = LAYERS[LAYERS.len() - 1].name;
     let exp = exp_table(scale(head)?);
     tensors.push((
@@ -279,6 +297,7 @@ pub fn quantise(weights: &FloatWeights, ranges: &ActivationRanges) -> Result<Qua
         layers: reports,
         cost_multipliers: [m2, m3],
         cost_zero_point: COST_ZERO_POINT,
+        views,
         spec_hash: config::SPEC_HASH,
         blob: out,
     })
@@ -450,21 +469,7 @@ pub fn restamp(dir: &std::path::Path, out: &mut impl std::io::Write) -> Result<(
 pub const SEARCH_PERCENTILES: [f64; 9] =
     [100.0, 99.999, 99.99, 99.95, 99.9, 99.5, 99.0, 98.0, 95.0];
 
-/// Views a trained model was trained with (`views` in its `manifest.json`; the spec's without
-/// one), so that calibration sees the variance statistics the model will run on.
-pub fn trained_views(dir: &std::path::Path) -> Result<usize> {
-    let path = dir.join("manifest.json");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        return Ok(config::VIEWS);
-    };
-    let j: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    match j.get("views").and_then(|v| v.as_u64()) {
-        Some(v @ 2..=3) => Ok(v as usize),
-        Some(v) => bail!("{}: views {v}, the int8 model runs 2 or 3", path.display()),
-        None => Ok(config::VIEWS),
-    }
-}
+pub use epssn_reference::weights::trained_views;
 
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
@@ -472,7 +477,8 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         return restamp(dir, out);
     }
     let n = args.calibration_samples.max(1);
-    let (weights, traces, samples, mut source, dir) = match (&args.weights, args.random_init) {
+    let (weights, traces, samples, mut source, dir, views) = match (&args.weights, args.random_init)
+    {
         (Some(dir), None) => {
             let weights = epssn_reference::safetensors_io::load_float_weights(
                 &dir.join("model.safetensors"),
@@ -529,6 +535,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 samples,
                 src,
                 args.out.clone().unwrap_or_else(|| dir.clone()),
+                views_n,
             )
         }
         (None, Some(seed)) => {
@@ -551,6 +558,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 Vec::new(),
                 serde_json::json!({ "random_init": seed }),
                 dir,
+                config::VIEWS,
             )
         }
         _ => bail!("give --weights DIR --calib DATA, or --random-init SEED"),
@@ -574,7 +582,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
     } else {
         (magnitudes.ranges(args.percentile), None)
     };
-    let q = quantise(&weights, &ranges)?;
+    let q = quantise(&weights, &ranges, views)?;
     if let (Some(s), serde_json::Value::Object(m)) = (&search, &mut source) {
         m.insert("search".into(), serde_json::to_value(s)?);
     }

@@ -72,3 +72,24 @@ pub fn load(dir: &Path) -> Result<Bundle> {
         ),
     }
 }
+
+/// Views a trained model was trained with (`views` in its `manifest.json`; the spec's without
+/// one): calibration sees the variance statistics the model will run on, the blob records the
+/// count ([`epssn::model::VIEWS_TENSOR`]) and `eval` feeds it by default.
+pub fn trained_views(dir: &Path) -> Result<usize> {
+    let path = dir.join("manifest.json");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(epssn::config::VIEWS);
+    };
+    let j: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    match j.get("views").and_then(|v| v.as_u64()) {
+        Some(v) if (2..=epssn::config::MAX_VIEWS as u64).contains(&v) => Ok(v as usize),
+        Some(v) => bail!(
+            "{}: views {v}, the int8 model runs 2..={}",
+            path.display(),
+            epssn::config::MAX_VIEWS
+        ),
+        None => Ok(epssn::config::VIEWS),
+    }
+}

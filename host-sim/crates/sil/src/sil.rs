@@ -299,7 +299,7 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
         let newest = cache
             .insert_with_attitude(seq, roll, attitude, |f| model.features(&image, &mut ws, f))
             .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
-        let found = cache.find_checked(&newest, config::VIEWS);
+        let found = cache.find_checked(&newest, model.views());
         let rejected = found.as_ref().and_then(|r| r.as_ref().err()).copied();
         let expected = match found.and_then(|r| r.ok()) {
             Some(set) => {

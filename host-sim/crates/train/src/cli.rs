@@ -82,7 +82,8 @@ pub struct EvalArgs {
     /// Simulated data folder (its `test/` split if present, else the folder itself).
     #[arg(long)]
     pub data: PathBuf,
-    /// Views fed to the model (1 = the reference as its own source).
+    /// Views fed to the model (1 = the reference as its own source); default: the views it was
+    /// trained on (`views` in the weights folder's `manifest.json`, else the spec's).
     #[arg(long)]
     pub views: Option<usize>,
     /// Print JSON instead of a table.
@@ -561,7 +562,11 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     };
     let model = FloatModel::load(&weights)?;
     let st = model.statics();
-    let views = args.views.unwrap_or(st.spec.baseline.views as usize);
+    // By default the view count the model was trained on: a model is far worse on another.
+    let views = match args.views {
+        Some(v) => v,
+        None => epssn_reference::weights::trained_views(&weights)?,
+    };
     if !(1..=3).contains(&views) {
         bail!("--views must be 1, 2 or 3");
     }
