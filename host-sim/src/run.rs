@@ -235,7 +235,7 @@ fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
     );
     Ok(Some((
         depth.data,
-        mask.data.iter().map(|&m| m > 0.5).collect(),
+        epssn_sim::metrics::mask_from_f32(&mask.data),
     )))
 }
 

@@ -424,7 +424,7 @@ impl SearchPixels {
     /// The pixels scored, from a sample's ground-truth mask (1 = surface in the window).
     pub fn scored(self, mask: &[f32]) -> Vec<bool> {
         match self {
-            SearchPixels::Mask => mask.iter().map(|&m| m > 0.5).collect(),
+            SearchPixels::Mask => epssn_sim::metrics::mask_from_f32(mask),
             SearchPixels::All => vec![true; mask.len()],
         }
     }

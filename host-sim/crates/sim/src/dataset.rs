@@ -89,7 +89,7 @@ impl Sample {
 
     /// The mask as booleans.
     pub fn mask_bool(&self) -> Vec<bool> {
-        self.mask.iter().map(|m| *m > 0.5).collect()
+        crate::metrics::mask_from_f32(&self.mask)
     }
 }
 

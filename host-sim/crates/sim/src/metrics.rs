@@ -133,6 +133,12 @@ pub fn depth_points(depth: &[f32], mask: &[bool]) -> Result<Vec<[f64; 3]>> {
     Ok(pts)
 }
 
+/// The ground-truth mask as booleans from its stored f32 form (`mask.npy`: 1 = the ray meets a
+/// surface inside the window, 0 = it does not): the one reading every tool uses.
+pub fn mask_from_f32(mask: &[f32]) -> Vec<bool> {
+    mask.iter().map(|&m| m > 0.5).collect()
+}
+
 /// Mask derived from a ground-truth map when none is given: pixels strictly inside the window
 /// (a label of exactly r_min or r_max means "nearer" or "nothing").
 pub fn derived_mask(gt: &[f32]) -> Vec<bool> {
@@ -365,11 +371,7 @@ pub fn run(args: &MetricsArgs) -> Result<()> {
     let pred = epssn_aris::npy::read_f32(&args.pred)?.data;
     let gt = epssn_aris::npy::read_f32(&args.gt)?.data;
     let mask = match &args.mask {
-        Some(p) => epssn_aris::npy::read_f32(p)?
-            .data
-            .iter()
-            .map(|v| *v > 0.5)
-            .collect(),
+        Some(p) => mask_from_f32(&epssn_aris::npy::read_f32(p)?.data),
         None => derived_mask(&gt),
     };
     let m = evaluate(&pred, &gt, &mask)?;

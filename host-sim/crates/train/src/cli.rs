@@ -618,7 +618,7 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             None => model.predict_batch(&refs)?,
         };
         for (s, d) in chunk.iter().zip(float_maps) {
-            let mask: Vec<bool> = s.mask.iter().map(|&m| m > 0.5).collect();
+            let mask = epssn_sim::metrics::mask_from_f32(&s.mask);
             if let Some(q) = &int8 {
                 let dq = epssn_reference::int8::depth_metres(q, &s.views, &mut ws)?;
                 int8_m.push(epssn_sim::metrics::evaluate(&dq, &s.depth, &mask)?);
