@@ -865,6 +865,21 @@ impl FloatModel {
         Ok(data.chunks(e * a).map(|c| c.to_vec()).collect())
     }
 
+    /// The head's logits of a batch, one `[E][R][A]` vector per sample (before the
+    /// soft-argmax), for studies of the depth readout.
+    pub fn logits_batch(&self, samples: &[&[Vec<u8>]]) -> Result<Vec<Vec<f32>>> {
+        let views = self.view_tensors(samples)?;
+        let out = self.model.forward(&views, None)?;
+        let [_, _, e, r, a] = out.logits.dims();
+        let data = out
+            .logits
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .map_err(|e| anyhow!("{e:?}"))?;
+        Ok(data.chunks(e * r * a).map(|c| c.to_vec()).collect())
+    }
+
     /// Every named intermediate activation of one sample (see the module docs for names).
     pub fn activations(&self, views: &[Vec<u8>]) -> Result<Vec<Activation>> {
         let t = self.view_tensors(&[views])?;
