@@ -1175,8 +1175,13 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
     }
     if !r.budget_violations.is_empty() {
+        let file = args
+            .budgets
+            .clone()
+            .unwrap_or_else(crate::budgets::default_path);
         bail!(
-            "SIL: over budget (weights/budgets.json): {}",
+            "SIL: over budget ({}): {}",
+            file.display(),
             r.budget_violations.join("; ")
         );
     }
