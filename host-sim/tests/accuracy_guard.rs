@@ -1,11 +1,12 @@
-//! CI's accuracy guard: the shipped model (the one the firmware embeds) on a small held-out set
-//! simulated at test time from a fixed seed, every scene, against the figures committed in
-//! `weights/ACCURACY_GUARD.json`. Fails when the float model's MAE (the paper's formula: all
-//! pixels, labels clamped) regresses by more than 10 % on a scene, or when int8 drifts more than
-//! 5 % from float.
+//! CI's accuracy guard: the shipped model (the one the firmware embeds) and the three-view model
+//! (`weights/general-3view/`) on a small held-out set simulated at test time from a fixed seed,
+//! every scene, against the figures committed in `weights/ACCURACY_GUARD.json` and
+//! `weights/general-3view/ACCURACY_GUARD.json`. Fails when the float model's MAE (the paper's
+//! formula: all pixels, labels clamped) regresses by more than 10 % on a scene, or when int8
+//! drifts more than 5 % from float.
 //!
-//! After a deliberate change of the shipped model, rewrite the committed figures with
-//! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the file.
+//! After a deliberate change of a guarded model, rewrite the committed figures with
+//! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the files.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -40,7 +41,23 @@ fn host_sim(args: &[&str]) -> serde_json::Value {
 
 #[test]
 fn shipped_model_keeps_its_accuracy_on_every_scene() {
+    guard(None, 2, "weights/ACCURACY_GUARD.json");
+}
+
+#[test]
+fn three_view_model_keeps_its_accuracy_on_every_scene() {
+    guard(
+        Some("weights/general-3view"),
+        3,
+        "weights/general-3view/ACCURACY_GUARD.json",
+    );
+}
+
+/// Simulates the held-out set with `views` views, evaluates `weights` (None: the shipped model;
+/// eval feeds the views the model was trained for) and checks or blesses `file`.
+fn guard(weights: Option<&str>, views: usize, file: &str) {
     let data = tempfile::tempdir().unwrap();
+    let views_arg = views.to_string();
     let mut measured = serde_json::Map::new();
     for scene in SCENES {
         let out = data.path().join(scene);
@@ -60,11 +77,12 @@ fn shipped_model_keeps_its_accuracy_on_every_scene() {
             "--out",
             out,
             "--no-preview",
+            "--views",
+            &views_arg,
         ]);
-        // No --weights: the model the firmware ships.
         // The float maps from the f64 reference network: burn's flex backend gives wrong float
         // maps for batches of 8 in the dev profile this test runs in (release is right).
-        let v = host_sim(&[
+        let mut args = vec![
             "eval",
             "--data",
             out,
@@ -72,7 +90,12 @@ fn shipped_model_keeps_its_accuracy_on_every_scene() {
             "--float-reference",
             "--json",
             "--breakdown",
-        ]);
+        ];
+        if let Some(w) = weights {
+            args.extend(["--weights", w]);
+        }
+        let v = host_sim(&args);
+        assert_eq!(v["views"].as_u64(), Some(views as u64), "{scene}: {v}");
         let float = v["float"]["mae"].as_f64().unwrap();
         let int8 = v["int8"]["mae"].as_f64().unwrap();
         assert!(float.is_finite() && int8.is_finite(), "{scene}: {v}");
@@ -97,11 +120,17 @@ fn shipped_model_keeps_its_accuracy_on_every_scene() {
             serde_json::json!({ "float_mae": float, "int8_mae": int8 }),
         );
     }
-    let file = root().join("weights/ACCURACY_GUARD.json");
+    let file = root().join(file);
     let doc = serde_json::json!({
-        "what": "shipped model, `host-sim eval --int8 --float-reference` on `simulate --split test --seed 77 --pairs 48` per scene; mae = the paper's formula (all pixels, labels clamped), mm",
+        "what": format!(
+            "{}, `host-sim eval --int8 --float-reference` on `simulate --split test --seed 77 \
+             --pairs 48 --views {views}` per scene; mae = the paper's formula (all pixels, labels \
+             clamped), mm",
+            weights.unwrap_or("shipped model")
+        ),
         "pairs": PAIRS,
         "seed": SEED,
+        "views": views,
         "scenes": measured,
     });
     if std::env::var_os("EPSSN_BLESS").is_some() {

@@ -10,14 +10,11 @@ fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
 }
 
-#[test]
-fn demo_run_is_bit_exact_and_scores_both_models() {
-    let out = tempfile::tempdir().unwrap();
-    let o = host_sim()
-        .args(["run", "--json", "--out"])
-        .arg(out.path())
-        .output()
-        .unwrap();
+/// Runs `host-sim run … --json` to success and checks what every run on a demo recording
+/// gives: six view sets, all bit-exact against the integer reference, finite MAE and CD for
+/// both models. Returns the JSON.
+fn demo_run(cmd: &mut Command) -> serde_json::Value {
+    let o = cmd.output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["pairs"], 6);
@@ -25,8 +22,18 @@ fn demo_run_is_bit_exact_and_scores_both_models() {
     for model in ["float", "int8"] {
         let mae = v[model]["mae"].as_f64().unwrap();
         let cd = v[model]["cd"].as_f64().unwrap();
-        assert!(mae.is_finite() && mae > 0.0 && cd.is_finite() && cd > 0.0);
+        assert!(
+            mae.is_finite() && mae > 0.0 && cd.is_finite() && cd > 0.0,
+            "{model}: {v}"
+        );
     }
+    v
+}
+
+#[test]
+fn demo_run_is_bit_exact_and_scores_both_models() {
+    let out = tempfile::tempdir().unwrap();
+    let v = demo_run(host_sim().args(["run", "--json", "--out"]).arg(out.path()));
     assert!(v["int8_vs_float_mae"].as_f64().unwrap().is_finite());
     for f in [
         "frame0000_depth.png",
@@ -43,6 +50,54 @@ fn demo_run_is_bit_exact_and_scores_both_models() {
         let r = d["rolls_deg"].as_array().unwrap();
         assert!((r[1].as_f64().unwrap() - r[0].as_f64().unwrap() - 7.0).abs() < 1e-6);
     }
+}
+
+/// The three-view model's blob says 3 views: `run` groups the three-view demo's frames in
+/// threes (0, +7, +14 degrees) without `--views`, bit-exact against the integer reference; the
+/// same weights refuse index pairs (two views).
+#[test]
+fn a_three_view_model_runs_on_view_triples() {
+    let out = tempfile::tempdir().unwrap();
+    let common = [
+        "run",
+        "--weights",
+        "weights/general-3view",
+        "--recording",
+        "data/demo-3view/recording.aris",
+        "--gt",
+        "data/demo-3view/gt",
+        "--json",
+    ];
+    let v = demo_run(
+        host_sim()
+            .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+            .args(common)
+            .arg("--out")
+            .arg(out.path()),
+    );
+    for d in v["details"].as_array().unwrap() {
+        let f: Vec<u64> = d["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_u64().unwrap())
+            .collect();
+        assert_eq!(f, vec![f[0], f[0] + 1, f[0] + 2], "{d}");
+        assert_eq!(f[0] % 3, 0, "{d}");
+    }
+    let o = host_sim()
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .args(common)
+        .args(["--pair", "0:1", "--out"])
+        .arg(out.path())
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("take 3 views"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
 }
 
 #[test]
