@@ -496,6 +496,18 @@ fn three_view_columns(
     for b in 0..width {
         let (c0, wl0, wr0) = window(taps[0][b]);
         let (c1, wl1, wr1) = window(taps[1][b]);
+        let column = [(c0, wl0 as i16, wr0 as i16), (c1, wl1 as i16, wr1 as i16)];
+        if crate::dsp::cost_column3(
+            out,
+            reference,
+            sources,
+            (width, b),
+            column,
+            cq.requant,
+            cq.zero_point,
+        ) {
+            continue;
+        }
         let rows = out
             .chunks_exact_mut(width)
             .zip(reference.chunks_exact(width))
