@@ -166,6 +166,14 @@ fn replies(bytes: &[u8]) -> Vec<Reply> {
     out
 }
 
+/// The independent integer reference's depth map of `views` (U16F16 bits), what every depth
+/// reply must equal.
+fn reference_depth(blob: &[u8], views: &[&[u8]]) -> Vec<u32> {
+    epssn_reference::reference_model::run(blob, views)
+        .unwrap()
+        .depth
+}
+
 fn blob() -> Vec<u8> {
     std::fs::read(epssn_reference::weights::firmware_blob_path().unwrap()).unwrap()
 }
@@ -264,9 +272,7 @@ fn a_view_set_gets_the_integer_reference_depth_map_bit_for_bit() {
         Message::Shutdown { seq: 3 },
     ]);
     let (got, pin) = serve(&blob, input);
-    let expected = epssn_reference::reference_model::run(&blob, &[&reference, &source])
-        .unwrap()
-        .depth;
+    let expected = reference_depth(&blob, &[&reference, &source]);
     assert_eq!(got.len(), 3, "{got:?}");
     assert_eq!(
         got[0],
@@ -335,9 +341,7 @@ fn a_restarted_host_is_served_at_once_after_hello() {
         Message::Shutdown { seq: 3 },
     ]);
     let (got, _) = serve(&blob, input);
-    let expected = epssn_reference::reference_model::run(&blob, &[&a, &b])
-        .unwrap()
-        .depth;
+    let expected = reference_depth(&blob, &[&a, &b]);
     assert_eq!(
         got,
         vec![
@@ -413,9 +417,7 @@ fn hello_mid_stream_starts_a_new_session() {
         Message::Shutdown { seq: 5 },
     ]);
     let (got, _) = serve(&blob, input);
-    let expected = epssn_reference::reference_model::run(&blob, &[&a, &b])
-        .unwrap()
-        .depth;
+    let expected = reference_depth(&blob, &[&a, &b]);
     assert_eq!(
         got,
         vec![
@@ -488,9 +490,7 @@ fn the_pose_gate_rejects_a_yawed_source_and_reports_why() {
         } => assert!((residual_deg - 2.0 * tol.min(1.0)).abs() < 1e-3),
         ref r => panic!("expected a rejection, got {r:?}"),
     }
-    let expected = epssn_reference::reference_model::run(&blob, &[&reference, &source])
-        .unwrap()
-        .depth;
+    let expected = reference_depth(&blob, &[&reference, &source]);
     assert_eq!(
         got[2],
         Reply::Depth {
@@ -526,9 +526,7 @@ fn a_three_view_blob_pairs_three_frames() {
     msgs.push(Message::Shutdown { seq: 4 });
     let (got, _) = serve(&blob, wire(&msgs));
     let views: Vec<&[u8]> = images.iter().map(|v| v.as_slice()).collect();
-    let expected = epssn_reference::reference_model::run(&blob, &views)
-        .unwrap()
-        .depth;
+    let expected = reference_depth(&blob, &views);
     assert_eq!(
         got,
         vec![

@@ -239,6 +239,21 @@ impl Tap {
         let l = row[self.left as usize] as i32 * self.wl as i32;
         (l + row[self.right as usize] as i32 * self.wr as i32 + 128) >> 8
     }
+
+    /// The tap as two adjacent source columns `c, c + 1` and their weights, what the column
+    /// kernels read (`dsp::cost_column`, `dsp::cost_column3`): a last-column tap weighs its
+    /// left neighbour 0, an invisible one has both weights 0. `None` for rows narrower than
+    /// two columns.
+    #[inline(always)]
+    fn window(self, width: usize) -> Option<(usize, i16, i16)> {
+        if width < 2 {
+            None
+        } else if (self.left as usize) + 1 < width {
+            Some((self.left as usize, self.wl, self.wr))
+        } else {
+            Some((width - 2, 0, self.wl))
+        }
+    }
 }
 
 /// Most feature columns the optimised kernel's per-plane tap table holds.
@@ -417,19 +432,19 @@ impl<'a> CostVolume<'a> {
             // Column by column (the column's tap stays in registers down the rows), each
             // tap as two adjacent source columns `c, c + 1` and their weights.
             for (b, t) in taps[0][..width].iter().enumerate() {
-                let (c, wl, wr) = if width < 2 {
-                    (usize::MAX, 0, 0)
-                } else if t.wr > 0 || t.wl == 0 {
-                    // Interpolating (right = left + 1), or invisible (weights 0).
-                    ((t.left as usize).min(width - 2), t.wl, t.wr)
-                } else if (t.left as usize) + 1 < width {
-                    (t.left as usize, t.wl, 0)
-                } else {
-                    (t.left as usize - 1, 0, t.wl)
-                };
-                if crate::dsp::cost_column(out, reference, src0, width, b, c, (wl, wr), &self.table)
-                {
-                    continue;
+                if let Some((c, wl, wr)) = t.window(width) {
+                    if crate::dsp::cost_column(
+                        out,
+                        reference,
+                        src0,
+                        width,
+                        b,
+                        c,
+                        (wl, wr),
+                        &self.table,
+                    ) {
+                        continue;
+                    }
                 }
                 // Not a two-column tap (a single column): the plain arithmetic.
                 let (l, r) = (
@@ -470,8 +485,9 @@ impl<'a> CostVolume<'a> {
 }
 
 /// Three views, column by column: both taps of a column stay in registers down its rows, and
-/// each tap reads one two-column window of its source row (one bounds check). With three
-/// views `n·Σv² − (Σv)² = (v0 − v1)² + (v0 − v2)² + (v1 − v2)²`: three multiplies.
+/// the variance is `n·Σv² − (Σv)² = (v0 − v1)² + (v0 − v2)² + (v1 − v2)²` (three multiplies).
+/// [`crate::dsp::cost_column3`] takes the columns it can (the unsigned cost volume); the rest
+/// run here.
 #[inline(always)]
 fn three_view_columns(
     out: &mut [i8],
@@ -482,31 +498,13 @@ fn three_view_columns(
     requant: impl Apply,
     cq: CostRequant,
 ) {
-    // A tap as a window `c, c + 1` and its two weights (a last-column tap weighs its left
-    // neighbour 0); invisible taps have both weights 0.
-    let window = |t: Tap| -> (usize, i32, i32) {
-        if width < 2 {
-            (0, t.wl as i32, 0)
-        } else if (t.left as usize) + 1 < width {
-            (t.left as usize, t.wl as i32, t.wr as i32)
-        } else {
-            (width - 2, 0, t.wl as i32)
-        }
-    };
     for b in 0..width {
-        let (c0, wl0, wr0) = window(taps[0][b]);
-        let (c1, wl1, wr1) = window(taps[1][b]);
-        let column = [(c0, wl0 as i16, wr0 as i16), (c1, wl1 as i16, wr1 as i16)];
-        if crate::dsp::cost_column3(
-            out,
-            reference,
-            sources,
-            (width, b),
-            column,
-            cq.requant,
-            cq.zero_point,
-        ) {
-            continue;
+        let (t0, t1) = (taps[0][b], taps[1][b]);
+        if let (Some(w0), Some(w1)) = (t0.window(width), t1.window(width)) {
+            let (rq, z) = (cq.requant, cq.zero_point);
+            if crate::dsp::cost_column3(out, reference, sources, (width, b), [w0, w1], rq, z) {
+                continue;
+            }
         }
         let rows = out
             .chunks_exact_mut(width)
@@ -514,19 +512,7 @@ fn three_view_columns(
             .zip(sources[0].chunks_exact(width))
             .zip(sources[1].chunks_exact(width));
         for (((o, v), s0), s1) in rows {
-            let v0 = v[b] as i32;
-            let (v1, v2) = if width < 2 {
-                (
-                    (s0[0] as i32 * wl0 + 128) >> 8,
-                    (s1[0] as i32 * wl1 + 128) >> 8,
-                )
-            } else {
-                let (w0, w1) = (&s0[c0..c0 + 2], &s1[c1..c1 + 2]);
-                (
-                    (w0[0] as i32 * wl0 + w0[1] as i32 * wr0 + 128) >> 8,
-                    (w1[0] as i32 * wl1 + w1[1] as i32 * wr1 + 128) >> 8,
-                )
-            };
+            let (v0, v1, v2) = (v[b] as i32, t0.warp(s0), t1.warp(s1));
             let (d01, d02, d12) = (v0 - v1, v0 - v2, v1 - v2);
             o[b] = cq.store(requant.apply(d01 * d01 + d02 * d02 + d12 * d12));
         }

@@ -163,6 +163,16 @@ pub const fn layer_skip_offset(l: &LayerShape, cost_zero_point: i32) -> i32 {
     }
 }
 
+/// A one-element int32 tensor the blob may lack (added after the format's first blobs):
+/// `default` when it is absent; any other defect of the blob is an error.
+fn read_optional_i32(blob: &Blob<'_>, name: &str, default: i32) -> Result<i32, Error> {
+    let mut v = [default];
+    match blob.read_i32(name, &mut v) {
+        Ok(()) | Err(BlobError::MissingTensor) => Ok(v[0]),
+        Err(e) => Err(e.into()),
+    }
+}
+
 fn name_buf(layer: &str, suffix: &str) -> heapless::String<24> {
     let mut s = heapless::String::new();
     let _ = s.push_str(layer);
@@ -205,27 +215,17 @@ impl<'a> Model<'a> {
         let blob = Blob::parse(bytes, config::SPEC_HASH)?;
         let mut c = [0i32; 4];
         blob.read_i32("cost.rq", &mut c)?;
-        let mut zero_point = [0i32; 1];
-        match blob.read_i32(COST_ZERO_POINT_TENSOR, &mut zero_point) {
-            Ok(()) | Err(BlobError::MissingTensor) => {}
-            Err(e) => return Err(e.into()),
-        }
+        let zero_point = read_optional_i32(&blob, COST_ZERO_POINT_TENSOR, 0)?;
         let cost = [(c[0], c[1]), (c[2], c[3])].map(|(multiplier, shift)| CostRequant {
             requant: Requant { multiplier, shift },
-            zero_point: zero_point[0],
+            zero_point,
         });
         if !cost[0].zero_point_valid() {
-            return Err(Error::Kernel(KernelError::CostZeroPoint {
-                zero_point: zero_point[0],
-            }));
+            return Err(Error::Kernel(KernelError::CostZeroPoint { zero_point }));
         }
-        let mut views = [config::VIEWS as i32; 1];
-        match blob.read_i32(VIEWS_TENSOR, &mut views) {
-            Ok(()) | Err(BlobError::MissingTensor) => {}
-            Err(e) => return Err(e.into()),
-        }
-        if !(2..=config::MAX_VIEWS as i32).contains(&views[0]) {
-            return Err(Error::Views { views: views[0] });
+        let views = read_optional_i32(&blob, VIEWS_TENSOR, config::VIEWS as i32)?;
+        if !(2..=config::MAX_VIEWS as i32).contains(&views) {
+            return Err(Error::Views { views });
         }
         // X ≤ 3·3·128² < 2^18 for any int8 features.
         if !cost.iter().all(|r| {
@@ -246,8 +246,8 @@ impl<'a> Model<'a> {
         let mut layers = [empty; config::LAYER_COUNT];
         for (index, (l, p)) in LAYERS.iter().zip(layers.iter_mut()).enumerate() {
             let oc = l.out_channels;
-            p.input_offset = layer_input_offset(index, zero_point[0]);
-            p.skip_offset = layer_skip_offset(l, zero_point[0]);
+            p.input_offset = layer_input_offset(index, zero_point);
+            p.skip_offset = layer_skip_offset(l, zero_point);
             p.weights = blob.i8_tensor(&name_buf(l.name, ".w"), l.weight_len())?;
             blob.read_i32(&name_buf(l.name, ".b"), &mut p.bias[..oc])?;
             let mut m = [0i32; MAX_CHANNELS];
@@ -297,7 +297,7 @@ impl<'a> Model<'a> {
         Ok(Self {
             layers,
             cost,
-            views: views[0] as usize,
+            views: views as usize,
             exp,
         })
     }

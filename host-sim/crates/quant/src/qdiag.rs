@@ -153,7 +153,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
 
     let folded = fold_all(&weights)?;
     let folded_q = fake_quant_weights(&folded, &scales);
-    let views_n = crate::quantise::trained_views(&args.weights)?;
+    let views_n = crate::quantise::int8_views(&args.weights)?;
     // Per sample: (diff from float, MAE vs GT) per config, then the library's.
     let per_sample: Vec<Vec<(f64, f64, f64)>> = dirs
         .par_iter()

@@ -124,7 +124,7 @@ pub fn top_code(name: &str) -> f64 {
 }
 
 /// Quantises `weights` with activation scales from `ranges` (max |x| per tensor).
-/// `views`: the view count the model was trained for ([`trained_views`]), which the blob
+/// `views`: the view count the model was trained for ([`int8_views`]), which the blob
 /// carries so that the firmware pairs frames into sets of that size.
 pub fn quantise(
     weights: &FloatWeights,
@@ -469,7 +469,7 @@ pub fn restamp(dir: &std::path::Path, out: &mut impl std::io::Write) -> Result<(
 pub const SEARCH_PERCENTILES: [f64; 9] =
     [100.0, 99.999, 99.99, 99.95, 99.9, 99.5, 99.0, 98.0, 95.0];
 
-pub use epssn_reference::weights::trained_views;
+pub use epssn_reference::weights::int8_views;
 
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
@@ -487,7 +487,7 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
                 .calib
                 .as_ref()
                 .ok_or_else(|| anyhow!("--calib DATA (training split) is needed with --weights"))?;
-            let views_n = trained_views(dir)?;
+            let views_n = int8_views(dir)?;
             let samples = epssn_sim::dataset::sample_dirs(calib, epssn_sim::scene::Split::Train)?;
             if samples.is_empty() {
                 bail!("no training samples under {}", calib.display());

@@ -73,9 +73,8 @@ pub fn load(dir: &Path) -> Result<Bundle> {
     }
 }
 
-/// Views a trained model was trained with (`views` in its `manifest.json`; the spec's without
-/// one): calibration sees the variance statistics the model will run on, the blob records the
-/// count ([`epssn::model::VIEWS_TENSOR`]) and `eval` feeds it by default.
+/// Views a trained model was trained with (`views` in its `manifest.json`, 1..=MAX_VIEWS, 1
+/// being the reference as its own source; the spec's without one): `eval` feeds it by default.
 pub fn trained_views(dir: &Path) -> Result<usize> {
     let path = dir.join("manifest.json");
     let Ok(text) = std::fs::read_to_string(&path) else {
@@ -84,12 +83,69 @@ pub fn trained_views(dir: &Path) -> Result<usize> {
     let j: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
     match j.get("views").and_then(|v| v.as_u64()) {
-        Some(v) if (2..=epssn::config::MAX_VIEWS as u64).contains(&v) => Ok(v as usize),
+        Some(v) if (1..=epssn::config::MAX_VIEWS as u64).contains(&v) => Ok(v as usize),
         Some(v) => bail!(
-            "{}: views {v}, the int8 model runs 2..={}",
+            "{}: views {v}, the model runs 1..={}",
             path.display(),
             epssn::config::MAX_VIEWS
         ),
         None => Ok(epssn::config::VIEWS),
+    }
+}
+
+/// [`trained_views`] for the int8 model, which runs 2..=MAX_VIEWS: calibration sees the
+/// variance statistics the model will run on, and the blob records the count
+/// ([`epssn::model::VIEWS_TENSOR`]).
+pub fn int8_views(dir: &Path) -> Result<usize> {
+    let views = trained_views(dir)?;
+    if views < 2 {
+        bail!(
+            "{}: trained on {views} view, the int8 model runs 2..={}",
+            dir.join("manifest.json").display(),
+            epssn::config::MAX_VIEWS
+        );
+    }
+    Ok(views)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scratch folder of this test process.
+    fn scratch(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("epssn-weights-{}-{name}", std::process::id()))
+    }
+
+    /// A scratch folder whose manifest says `views` (or has none).
+    fn folder(name: &str, views: Option<u64>) -> PathBuf {
+        let dir = scratch(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let manifest = match views {
+            Some(v) => serde_json::json!({ "views": v }),
+            None => serde_json::json!({}),
+        };
+        std::fs::write(dir.join("manifest.json"), manifest.to_string()).unwrap();
+        dir
+    }
+
+    #[test]
+    fn views_from_the_manifest_float_and_int8() {
+        let spec = epssn::config::VIEWS;
+        for (name, views, float, int8) in [
+            ("views-none", None, Some(spec), Some(spec)),
+            ("views-1", Some(1), Some(1), None),
+            ("views-3", Some(3), Some(3), Some(3)),
+            ("views-0", Some(0), None, None),
+            ("views-4", Some(4), None, None),
+        ] {
+            let dir = folder(name, views);
+            assert_eq!(trained_views(&dir).ok(), float, "{name}");
+            assert_eq!(int8_views(&dir).ok(), int8, "{name}");
+        }
+        assert_eq!(trained_views(&scratch("views-no-folder")).unwrap(), spec);
+        for name in ["views-none", "views-1", "views-3", "views-0", "views-4"] {
+            let _ = std::fs::remove_dir_all(scratch(name));
+        }
     }
 }

@@ -854,30 +854,14 @@ impl FloatModel {
     /// [`predict`](Self::predict) for several samples at once (same view count).
     pub fn predict_batch(&self, samples: &[&[Vec<u8>]]) -> Result<Vec<Vec<f32>>> {
         let views = self.view_tensors(samples)?;
-        let out = self.model.forward(&views, None)?;
-        let (e, a) = self.model.statics.output_size();
-        let data = out
-            .depth
-            .into_data()
-            .convert::<f32>()
-            .try_to_vec::<f32>()
-            .map_err(|e| anyhow!("{e:?}"))?;
-        Ok(data.chunks(e * a).map(|c| c.to_vec()).collect())
+        per_sample(self.model.forward(&views, None)?.depth)
     }
 
     /// The head's logits of a batch, one `[E][R][A]` vector per sample (before the
     /// soft-argmax), for studies of the depth readout.
     pub fn logits_batch(&self, samples: &[&[Vec<u8>]]) -> Result<Vec<Vec<f32>>> {
         let views = self.view_tensors(samples)?;
-        let out = self.model.forward(&views, None)?;
-        let [_, _, e, r, a] = out.logits.dims();
-        let data = out
-            .logits
-            .into_data()
-            .convert::<f32>()
-            .try_to_vec::<f32>()
-            .map_err(|e| anyhow!("{e:?}"))?;
-        Ok(data.chunks(e * r * a).map(|c| c.to_vec()).collect())
+        per_sample(self.model.forward(&views, None)?.logits)
     }
 
     /// Every named intermediate activation of one sample (see the module docs for names).
@@ -887,6 +871,17 @@ impl FloatModel {
         self.model.forward(&t, Some(&mut sink))?;
         Ok(sink)
     }
+}
+
+/// A batch tensor `[B][…]` as one vector per sample.
+fn per_sample<const D: usize>(t: Tensor<D>) -> Result<Vec<Vec<f32>>> {
+    let len = t.dims()[1..].iter().product::<usize>().max(1);
+    let data = t
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| anyhow!("{e:?}"))?;
+    Ok(data.chunks(len).map(<[f32]>::to_vec).collect())
 }
 
 /// The deterministic generator (SplitMix64) of initialisation and shuffling: the host's one
