@@ -125,6 +125,10 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         spec.feature_net.last().map(|l| l.out_channels as usize) == Some(c),
         "feature_net output channels must be features.channels",
     );
+    check(
+        spec.features.mean_channels as usize <= c,
+        "features.mean_channels must not exceed features.channels",
+    );
     let mut sizes_3d = vec![n, fr, fb];
     let mut max_cost_act = c * n * fr * fb;
     for l in spec.cost_net.iter() {
@@ -196,6 +200,11 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         ("INPUT_RANGE_BINS", "Input range bins R.", r),
         ("INPUT_COLUMNS", "Input beam columns B.", b),
         ("FEATURE_CHANNELS", "Feature channels C.", c),
+        (
+            "MEAN_CHANNELS",
+            "The last cost channels that hold the views' mean (clipped at 0), not their variance.",
+            spec.features.mean_channels as usize,
+        ),
         ("FEATURE_STRIDE", "Feature stride.", stride),
         ("FEATURE_RANGE_BINS", "Feature range bins R / stride.", fr),
         ("FEATURE_COLUMNS", "Feature columns B / stride.", fb),

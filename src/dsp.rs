@@ -695,8 +695,62 @@ pub fn cost_column(
     width: usize,
     col: usize,
     c: usize,
+    taps: (i16, i16),
+    table: &[i8; 512],
+) -> bool {
+    table_column(
+        out,
+        [reference, src],
+        (width, col, c),
+        taps,
+        table,
+        Combine::Difference,
+    )
+}
+
+/// [`cost_column`] for a mean channel: `out[i] = table[reference[i] + w + 256]`
+/// (`reference + w` in `−256..=254`, so the index lies in `0..=510`). Same conditions, same
+/// 12 instructions per value (one `ADD` where the variance has a `SUB`).
+#[allow(clippy::too_many_arguments)]
+pub fn mean_column(
+    out: &mut [i8],
+    reference: &[i8],
+    src: &[i8],
+    width: usize,
+    col: usize,
+    c: usize,
+    taps: (i16, i16),
+    table: &[i8; 512],
+) -> bool {
+    table_column(
+        out,
+        [reference, src],
+        (width, col, c),
+        taps,
+        table,
+        Combine::Sum,
+    )
+}
+
+/// How [`table_column`] combines the reference value with the warped source value.
+#[derive(Clone, Copy)]
+enum Combine {
+    /// `reference − w`, read at table offset 255 (the variance of two views).
+    Difference,
+    /// `reference + w`, read at table offset 256 (the mean of two views).
+    Sum,
+}
+
+/// The loop of [`cost_column`] and [`mean_column`]: one audited `asm!` template (the macro
+/// below), the combining instruction its only difference.
+#[inline(always)]
+fn table_column(
+    out: &mut [i8],
+    [reference, src]: [&[i8]; 2],
+    (width, col, c): (usize, usize, usize),
     (wl, wr): (i16, i16),
     table: &[i8; 512],
+    combine: Combine,
 ) -> bool {
     let n = out.len();
     let ok = reference.len() == n
@@ -714,37 +768,45 @@ pub fn cost_column(
     if n > 0 {
         // SAFETY: i runs over col, col + width, … < n: reference[i], out[i] are in bounds,
         // and src[i − col + c], src[i − col + c + 1] too (c + 1 < width, so both lie in the
-        // row of i). The table index is reference − w + 255 with reference in −128..=127
-        // and w in −128..=127 (a weighted mean of two int8 values with weights summing to
-        // at most 256, rounded), so 0..=510 < 512.
-        #[allow(unsafe_code)]
-        unsafe {
-            core::arch::asm!(
-                "2:",
-                "ldrsb  {v}, [{rp}, {i}]",
-                "ldrh   {t}, [{sp_}, {i}]",
-                "orr    {t}, {t}, {t}, lsl #8",
-                "sxtb16 {t}, {t}",
-                "smuad  {t}, {t}, {wp}",
-                "add    {t}, {t}, #128",
-                "sub    {t}, {v}, {t}, asr #8",
-                "ldrb   {t}, [{tb}, {t}]",
-                "strb   {t}, [{op}, {i}]",
-                "add    {i}, {i}, {st}",
-                "cmp    {i}, {n}",
-                "blo    2b",
-                rp = in(reg) reference.as_ptr(),
-                sp_ = in(reg) src.as_ptr().wrapping_add(c).wrapping_sub(col),
-                op = in(reg) out.as_mut_ptr(),
-                tb = in(reg) table.as_ptr().add(255),
-                wp = in(reg) pack(wl, wr),
-                st = in(reg) width,
-                n = in(reg) n,
-                i = inout(reg) col => _,
-                v = out(reg) _,
-                t = out(reg) _,
-                options(nostack),
-            );
+        // row of i). The table index is reference ∓ w + 255 (or + 256) with reference in
+        // −128..=127 and w in −128..=127 (a weighted mean of two int8 values with weights
+        // summing to at most 256, rounded), so 0..=510 < 512.
+        macro_rules! column_loop {
+            ($combine:literal, $offset:literal) => {{
+                #[allow(unsafe_code)]
+                unsafe {
+                    core::arch::asm!(
+                        "2:",
+                        "ldrsb  {v}, [{rp}, {i}]",
+                        "ldrh   {t}, [{sp_}, {i}]",
+                        "orr    {t}, {t}, {t}, lsl #8",
+                        "sxtb16 {t}, {t}",
+                        "smuad  {t}, {t}, {wp}",
+                        "add    {t}, {t}, #128",
+                        $combine,
+                        "ldrb   {t}, [{tb}, {t}]",
+                        "strb   {t}, [{op}, {i}]",
+                        "add    {i}, {i}, {st}",
+                        "cmp    {i}, {n}",
+                        "blo    2b",
+                        rp = in(reg) reference.as_ptr(),
+                        sp_ = in(reg) src.as_ptr().wrapping_add(c).wrapping_sub(col),
+                        op = in(reg) out.as_mut_ptr(),
+                        tb = in(reg) table.as_ptr().add($offset),
+                        wp = in(reg) pack(wl, wr),
+                        st = in(reg) width,
+                        n = in(reg) n,
+                        i = inout(reg) col => _,
+                        v = out(reg) _,
+                        t = out(reg) _,
+                        options(nostack),
+                    )
+                };
+            }};
+        }
+        match combine {
+            Combine::Difference => column_loop!("sub    {t}, {v}, {t}, asr #8", 255),
+            Combine::Sum => column_loop!("add    {t}, {v}, {t}, asr #8", 256),
         }
         return true;
     }
@@ -754,7 +816,11 @@ pub fn cost_column(
         .zip(src.chunks_exact(width))
     {
         let w = (s[c] as i32 * wl as i32 + s[c + 1] as i32 * wr as i32 + 128) >> 8;
-        o[col] = table[(r[col] as i32 - w + 255).clamp(0, 511) as usize];
+        let index = match combine {
+            Combine::Difference => r[col] as i32 - w + 255,
+            Combine::Sum => r[col] as i32 + w + 256,
+        };
+        o[col] = table[index.clamp(0, 511) as usize];
     }
     true
 }

@@ -270,6 +270,36 @@ fn cost_zero_points_old_new_and_invalid() {
     }
 }
 
+/// With mean channels (spec 3) the blob carries their multipliers (`cost.mean`), and a blob
+/// without them, or with a tensor of another size, is refused; a spec without mean channels
+/// has no such tensor.
+#[test]
+fn mean_channel_multipliers_present_exactly_with_mean_channels() {
+    let blob = quantised_blob(25);
+    let name = epssn::model::COST_MEAN_TENSOR;
+    let parsed = epssn::blob::Blob::parse(&blob, config::SPEC_HASH).unwrap();
+    let mut mean = [0i32; 4];
+    if config::MEAN_CHANNELS == 0 {
+        assert_eq!(
+            parsed.read_i32(name, &mut mean),
+            Err(epssn::blob::BlobError::MissingTensor)
+        );
+        return;
+    }
+    parsed.read_i32(name, &mut mean).unwrap();
+    assert!(mean[0] >= 1 << 30 && mean[2] >= 1 << 30, "{mean:?}");
+    let without = epssn_tests::with_i32_tensor(&blob, name, None);
+    assert_eq!(
+        Model::from_blob(&without).unwrap_err(),
+        epssn::model::Error::Blob(epssn::blob::BlobError::MissingTensor)
+    );
+    let short = epssn_tests::with_i32_tensor(&blob, name, Some(1 << 30));
+    assert!(matches!(
+        Model::from_blob(&short).unwrap_err(),
+        epssn::model::Error::Blob(_)
+    ));
+}
+
 /// The blob records the views its model was trained for (the server pairs sets of that size);
 /// a blob without the tensor has the spec's, and counts the library cannot run are refused.
 #[test]

@@ -257,6 +257,11 @@ fn main() -> ! {
                 multiplier: 1 << 30,
                 shift: -6,
             },
+            // m' = 3/4: the mean channels run on the M7 too (CostShape::EPSSN has them).
+            mean: Requant {
+                multiplier: 3 << 29,
+                shift: 0,
+            },
             zero_point: if views == 1 { 0 } else { -128 },
         };
         let len = config::COST_VOLUME_LEN;
@@ -291,6 +296,7 @@ fn main() -> ! {
             planes,
             height,
             width,
+            mean_channels: _,
         } = CostShape::EPSSN;
         a[..len].fill(0);
         let mut ok = true;

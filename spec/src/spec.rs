@@ -102,6 +102,16 @@ pub struct FeatureSpec {
     pub channels: u16,
     /// Stride relative to the input.
     pub stride: u16,
+    /// How many of the C channels enter the cost volume as their mean over the views, clipped
+    /// at 0, instead of their variance (the last ones). The variance only says how well the views agree on a
+    /// plane; the mean carries what a single view sees, the cue a one-view network lives on.
+    /// 0 (the default) is the variance-only cost volume of MVSNet.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub mean_channels: u16,
+}
+
+fn is_zero(v: &u16) -> bool {
+    *v == 0
 }
 
 /// The front depth map.

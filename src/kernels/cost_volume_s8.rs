@@ -1,5 +1,5 @@
-//! Plane-sweep warp of the source features and the variance cost volume (QUANTISATION.md
-//! "Warp and cost volume").
+//! Plane-sweep warp of the source features and the variance (and mean) cost volume
+//! (QUANTISATION.md "Warp and cost volume").
 //!
 //! Reference features `[C][H][W]` i8, one or two source feature maps of the same shape and
 //! scale, each with its range-independent warp table `[plane][W]`; output cost volume
@@ -8,6 +8,8 @@
 //! `n` views `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X, M_n, shift_n), 0, 127 − z)` and the
 //! stored value `q + z`, where the zero point `z` ([`CostRequant`]) is 0 (`q` in `0..=127`) or
 //! −128 (the variance is never negative, so all 256 codes hold `0..=255`: twice the resolution).
+//! The last [`CostShape::mean_channels`] channels hold the views' mean instead:
+//! `q = clamp(MBQM(Σv, M'_n, shift'_n), 0, 127 − z)`, a mean clipped at 0 like the float model's.
 //!
 //! Work: `C · N · H · W · (n + 2·(n − 1))` multiplies (n views; 2 per bilinear warp).
 
@@ -27,6 +29,8 @@ pub struct CostShape {
     pub height: usize,
     /// Feature columns W.
     pub width: usize,
+    /// The last channels, which hold the views' mean (clipped at 0) instead of their variance.
+    pub mean_channels: usize,
 }
 
 impl CostShape {
@@ -36,7 +40,14 @@ impl CostShape {
         planes: crate::config::PLANES,
         height: crate::config::FEATURE_RANGE_BINS,
         width: crate::config::FEATURE_COLUMNS,
+        mean_channels: crate::config::MEAN_CHANNELS,
     };
+
+    /// True when channel `c` holds the views' mean rather than their variance.
+    #[inline(always)]
+    pub const fn is_mean(&self, c: usize) -> bool {
+        c + self.mean_channels >= self.channels
+    }
 }
 
 /// One source view: its features and its warp table.
@@ -54,6 +65,8 @@ pub struct SourceView<'a> {
 pub struct CostRequant {
     /// `m_n = s_f² / (n² · s_cost)`.
     pub requant: Requant,
+    /// `m'_n = s_f / (n · s_cost)`: the mean channels' multiplier (unused without them).
+    pub mean: Requant,
     /// Stored value of a zero variance: 0 (codes `0..=127`, blobs written before the
     /// unsigned cost volume) or −128 (codes `−128..=127` for `q` in `0..=255`). The layers
     /// that read the cost volume add `−zero_point` back (d1's `input_offset`, u0's skip offset).
@@ -135,16 +148,36 @@ fn check_inner(
             }
         }
     }
-    if !requant.shift_in_range() {
-        return Err(KernelError::Shift {
-            channel: 0,
-            shift: requant.shift,
+    if shape.mean_channels > shape.channels {
+        return Err(KernelError::MeanChannels {
+            mean_channels: shape.mean_channels,
+            channels: shape.channels,
         });
     }
-    // X ≤ n²·128² (< 2^18 for n ≤ 3).
+    // X ≤ n²·128² (< 2^18 for n ≤ 3); |Σv| ≤ n·128.
     let n = sources.len() as i64 + 1;
-    let bound = n * n * 128 * 128;
-    if !requant.fits(bound) {
+    check_requant(requant, n * n * 128 * 128)?;
+    if shape.mean_channels > 0 {
+        // A mean below 0 stores what 0 does only for M' ≥ 0 (the streamed kernel relies on it).
+        if cq.mean.multiplier < 0 {
+            return Err(KernelError::NegativeMultiplier {
+                multiplier: cq.mean.multiplier,
+            });
+        }
+        check_requant(cq.mean, n * 128)?;
+    }
+    Ok(())
+}
+
+/// A per-tensor multiplier's shift range and its accumulator bound.
+fn check_requant(rq: Requant, bound: i64) -> Result<(), KernelError> {
+    if !rq.shift_in_range() {
+        return Err(KernelError::Shift {
+            channel: 0,
+            shift: rq.shift,
+        });
+    }
+    if !rq.fits(bound) {
         return Err(KernelError::AccumulatorOverflow { channel: 0, bound });
     }
     Ok(())
@@ -184,9 +217,11 @@ pub fn cost_volume_s8_plain(
         planes,
         height,
         width,
+        mean_channels: _,
     } = *shape;
     let n = sources.len() as i32 + 1;
     for c in 0..channels {
+        let is_mean = shape.is_mean(c);
         for j in 0..planes {
             for r in 0..height {
                 for b in 0..width {
@@ -199,7 +234,11 @@ pub fn cost_volume_s8_plain(
                         sum += v;
                         sum_sq += v * v;
                     }
-                    output[((c * planes + j) * height + r) * width + b] = cost(sum, sum_sq, n, cq);
+                    output[((c * planes + j) * height + r) * width + b] = if is_mean {
+                        cq.store(cq.mean.apply(sum))
+                    } else {
+                        cost(sum, sum_sq, n, cq)
+                    };
                 }
             }
         }
@@ -276,6 +315,7 @@ pub fn cost_volume_s8(
         planes,
         height,
         width,
+        mean_channels: _,
     } = *shape;
     let plane_len = height * width;
     if output.is_empty() {
@@ -301,6 +341,17 @@ pub fn cost_volume_s8(
                 }
             }
             let src0 = &sources[0].features[c * plane_len..(c + 1) * plane_len];
+            if shape.is_mean(c) {
+                let store = |sum: i32| cq.store(cq.mean.apply(sum));
+                match sources.get(1) {
+                    None => mean_columns2(out_j, ref_c, src0, 0..width, width, &taps[0], store),
+                    Some(s1) => {
+                        let src1 = &s1.features[c * plane_len..(c + 1) * plane_len];
+                        mean_columns3(out_j, ref_c, [src0, src1], width, &taps, store)
+                    }
+                }
+                continue;
+            }
             match sources.get(1) {
                 None => {
                     for ((out_r, ref_r), src_r) in out_j
@@ -351,10 +402,18 @@ pub struct CostVolume<'a> {
     /// `v0 − v1 + 255` (`0..=510`; the last entry is never read, it makes the index mask
     /// `& 511` exact).
     table: [i8; 512],
+    /// Mean channels: the stored value of `MBQM(S, M', shift')` for the views' sum `S`, at
+    /// index `S + 256` with two views (`S` in −256..=254, [`crate::dsp::mean_column`]'s
+    /// layout), at index `max(S, 0)` with three (`S ≤ 3·127`; a negative sum stores what 0
+    /// does, the clipped mean, because `M' ≥ 0`).
+    mean_table: [i8; 512],
 }
 
 impl<'a> CostVolume<'a> {
     /// Validates the operands as [`cost_volume_s8`] does (the output is not known yet).
+    // Not inlined: the tables' temporaries then live in this frame, not in the caller's, which
+    // stays on the stack while the UNet streams.
+    #[inline(never)]
     pub fn new(
         shape: &CostShape,
         reference: &'a [i8],
@@ -390,6 +449,12 @@ impl<'a> CostVolume<'a> {
                 let d = i as i32 - 255;
                 cq.store(cq.requant.apply(d * d))
             }),
+            // `cq.mean` is validated only when there are mean channels.
+            mean_table: core::array::from_fn(|i| match (shape.mean_channels, sources.len()) {
+                (0, _) => 0,
+                (_, 1) => cq.store(cq.mean.apply(i as i32 - 256)),
+                _ => cq.store(cq.mean.apply(i as i32)),
+            }),
         })
     }
 
@@ -406,6 +471,7 @@ impl<'a> CostVolume<'a> {
             planes,
             height,
             width,
+            mean_channels: _,
         } = self.shape;
         if channel >= channels || plane >= planes || rows.start > rows.end || rows.end > height {
             return Err(KernelError::SizeOverflow);
@@ -428,6 +494,37 @@ impl<'a> CostVolume<'a> {
             }
         }
         let src0 = &self.sources[0].features[span.clone()];
+        if self.shape.is_mean(channel) {
+            if self.views == 1 {
+                // Column by column as the variance: the DSP loop where the tap has two
+                // columns, else the plain arithmetic (`v0 + w + 256` in 0..=510).
+                for (b, t) in taps[0][..width].iter().enumerate() {
+                    if let Some((c, wl, wr)) = t.window(width) {
+                        let table = &self.mean_table;
+                        if crate::dsp::mean_column(
+                            out,
+                            reference,
+                            src0,
+                            width,
+                            b,
+                            c,
+                            (wl, wr),
+                            table,
+                        ) {
+                            continue;
+                        }
+                    }
+                    let store = |sum: i32| self.mean_table[(sum + 256).clamp(0, 511) as usize];
+                    mean_columns2(out, reference, src0, b..b + 1, width, &taps[0], store);
+                }
+            } else {
+                // Every sum ≤ 0 stores entry 0 (`z`, as M' ≥ 0); no sum exceeds 3·127.
+                let store = |sum: i32| self.mean_table[sum.clamp(0, 511) as usize];
+                let src1 = &self.sources[1].features[span];
+                mean_columns3(out, reference, [src0, src1], width, &taps, store);
+            }
+            return Ok(());
+        }
         if self.views == 1 {
             // Column by column (the column's tap stays in registers down the rows), each
             // tap as two adjacent source columns `c, c + 1` and their weights.
@@ -465,21 +562,11 @@ impl<'a> CostVolume<'a> {
             return Ok(());
         }
         let src1 = &self.sources[1].features[span];
+        // One requantisation variant: the DSP kernel takes the columns of every blob the
+        // quantiser writes (zero point −128), so the portable loop's speed matters little
+        // and a second, fast-requantisation copy of it is not worth its flash.
         let requant = self.cq.requant;
-        // X ≤ 9·128² for three views.
-        if requant.fits_fast(9 * 128 * 128) {
-            three_view_columns(
-                out,
-                reference,
-                [src0, src1],
-                width,
-                &taps,
-                FastRequant::new(requant),
-                self.cq,
-            );
-        } else {
-            three_view_columns(out, reference, [src0, src1], width, &taps, requant, self.cq);
-        }
+        three_view_columns(out, reference, [src0, src1], width, &taps, requant, self.cq);
         Ok(())
     }
 }
@@ -515,6 +602,53 @@ fn three_view_columns(
             let (v0, v1, v2) = (v[b] as i32, t0.warp(s0), t1.warp(s1));
             let (d01, d02, d12) = (v0 - v1, v0 - v2, v1 - v2);
             o[b] = cq.store(requant.apply(d01 * d01 + d02 * d02 + d12 * d12));
+        }
+    }
+}
+
+/// The mean channels of two views, column by column (the column's tap stays in registers down
+/// the rows): `store(v0 + w1)`, where `store` gives `clamp(MBQM(Σv, M', shift'), 0, 127 − z) + z`.
+#[inline(never)]
+fn mean_columns2(
+    out: &mut [i8],
+    reference: &[i8],
+    src0: &[i8],
+    columns: core::ops::Range<usize>,
+    width: usize,
+    taps: &[Tap; MAX_WIDTH],
+    store: impl Fn(i32) -> i8,
+) {
+    for b in columns {
+        let t0 = taps[b];
+        let rows = out
+            .chunks_exact_mut(width)
+            .zip(reference.chunks_exact(width))
+            .zip(src0.chunks_exact(width));
+        for ((o, v), s0) in rows {
+            o[b] = store(v[b] as i32 + t0.warp(s0));
+        }
+    }
+}
+
+/// [`mean_columns2`] for three views: `store(v0 + w1 + w2)`.
+#[inline(never)]
+fn mean_columns3(
+    out: &mut [i8],
+    reference: &[i8],
+    sources: [&[i8]; 2],
+    width: usize,
+    taps: &[[Tap; MAX_WIDTH]; 2],
+    store: impl Fn(i32) -> i8,
+) {
+    for b in 0..width {
+        let (t0, t1) = (taps[0][b], taps[1][b]);
+        let rows = out
+            .chunks_exact_mut(width)
+            .zip(reference.chunks_exact(width))
+            .zip(sources[0].chunks_exact(width))
+            .zip(sources[1].chunks_exact(width));
+        for (((o, v), s0), s1) in rows {
+            o[b] = store(v[b] as i32 + t0.warp(s0) + t1.warp(s1));
         }
     }
 }
@@ -560,11 +694,13 @@ mod tests {
     fn optimised_equals_plain_random() {
         let mut rng = Rng(42);
         for case in 0..100 {
+            let channels = 1 + rng.below(3);
             let shape = CostShape {
-                channels: 1 + rng.below(3),
+                channels,
                 planes: 1 + rng.below(4),
                 height: 1 + rng.below(5),
                 width: 1 + rng.below(7),
+                mean_channels: rng.below(channels + 1),
             };
             let feat = shape.channels * shape.height * shape.width;
             let reference = rng.i8s(feat);
@@ -588,6 +724,11 @@ mod tests {
                 requant: Requant {
                     multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
                     shift: rng.range(-14, 0) as i32,
+                },
+                // From the mean's shrinking (shift −9) to its growing (shift 1) multipliers.
+                mean: Requant {
+                    multiplier: rng.range(1 << 30, (1i64 << 31) - 1) as i32,
+                    shift: rng.range(-9, 2) as i32,
                 },
                 zero_point,
             };
@@ -640,6 +781,7 @@ mod tests {
         for (n, zero_point) in [(1, 0), (2, 0), (1, -128), (2, -128)] {
             let rq = CostRequant {
                 requant: Requant::from_real(1.0 / 512.0).unwrap(),
+                mean: Requant::from_real(0.75).unwrap(),
                 zero_point,
             };
             let (mut a, mut o) = (
@@ -653,6 +795,18 @@ mod tests {
         }
     }
 
+    /// A warp table `[planes][width]` mapping every column onto itself (α = 0): the source
+    /// seen through it is the source itself.
+    fn identity_table(planes: usize, width: usize) -> Vec<WarpEntry> {
+        (0..planes * width)
+            .map(|i| WarpEntry {
+                column: (i % width) as u8,
+                fraction: 0,
+                visible: true,
+            })
+            .collect()
+    }
+
     #[test]
     fn identical_views_have_zero_cost_and_errors() {
         // A source whose table maps every column onto itself, α = 0: variance 0.
@@ -661,16 +815,11 @@ mod tests {
             planes: 3,
             height: 4,
             width: 5,
+            mean_channels: 0,
         };
         let mut rng = Rng(8);
         let f = rng.i8s(40);
-        let table: Vec<WarpEntry> = (0..15)
-            .map(|i| WarpEntry {
-                column: (i % 5) as u8,
-                fraction: 0,
-                visible: true,
-            })
-            .collect();
+        let table = identity_table(3, 5);
         let v = [SourceView {
             features: &f,
             warp: &table,
@@ -680,6 +829,7 @@ mod tests {
             let rq = CostRequant {
                 requant: Requant::from_real(1.0).unwrap(),
                 zero_point,
+                ..CostRequant::default()
             };
             cost_volume_s8(&shape, &f, &v, rq, &mut out).unwrap();
             assert!(out.iter().all(|&x| x as i32 == zero_point));
@@ -687,6 +837,7 @@ mod tests {
         let rq = CostRequant {
             requant: Requant::from_real(1.0).unwrap(),
             zero_point: 0,
+            ..CostRequant::default()
         };
         // Only the two zero points of the contract are accepted.
         assert_eq!(
@@ -731,5 +882,90 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn mean_channels_hold_the_clipped_mean_and_errors() {
+        // Two views whose source equals the reference (α = 0): the mean is the reference
+        // itself; with M' = 1/2 per view pair the stored code is max(v, 0) + z.
+        let shape = CostShape {
+            channels: 2,
+            planes: 3,
+            height: 4,
+            width: 5,
+            mean_channels: 1,
+        };
+        let mut rng = Rng(9);
+        let f = rng.i8s(40);
+        let table = identity_table(3, 5);
+        let v = [SourceView {
+            features: &f,
+            warp: &table,
+        }];
+        for zero_point in CostRequant::ZERO_POINTS {
+            let rq = CostRequant {
+                requant: Requant::from_real(1.0).unwrap(),
+                mean: Requant::from_real(0.5).unwrap(),
+                zero_point,
+            };
+            let mut out = vec![1i8; 120];
+            cost_volume_s8(&shape, &f, &v, rq, &mut out).unwrap();
+            let (variance, mean) = out.split_at(60);
+            assert!(variance.iter().all(|&x| x as i32 == zero_point));
+            for (k, &x) in mean.iter().enumerate() {
+                let v = f[20 + k % 20] as i32;
+                let expect = v.clamp(0, 127 - zero_point) + zero_point;
+                assert_eq!(x as i32, expect, "zero point {zero_point}, voxel {k}");
+            }
+        }
+        // More mean channels than channels, and a mean multiplier whose bound overflows.
+        let rq = CostRequant {
+            requant: Requant::from_real(1.0).unwrap(),
+            mean: Requant::from_real(0.5).unwrap(),
+            zero_point: -128,
+        };
+        let mut out = vec![0i8; 120];
+        let too_many = CostShape {
+            mean_channels: 3,
+            ..shape
+        };
+        assert_eq!(
+            cost_volume_s8(&too_many, &f, &v, rq, &mut out),
+            Err(KernelError::MeanChannels {
+                mean_channels: 3,
+                channels: 2
+            })
+        );
+        let huge = CostRequant {
+            mean: Requant {
+                multiplier: 1 << 30,
+                shift: 30,
+            },
+            ..rq
+        };
+        assert!(matches!(
+            cost_volume_s8(&shape, &f, &v, huge, &mut out),
+            Err(KernelError::AccumulatorOverflow { .. })
+        ));
+        assert!(CostVolume::new(&shape, &f, &v, huge).is_err());
+        let negative = CostRequant {
+            mean: Requant {
+                multiplier: -(1 << 30),
+                shift: 0,
+            },
+            ..rq
+        };
+        assert_eq!(
+            cost_volume_s8(&shape, &f, &v, negative, &mut out),
+            Err(KernelError::NegativeMultiplier {
+                multiplier: -(1 << 30)
+            })
+        );
+        // Without mean channels the mean multiplier is not read.
+        let none = CostShape {
+            mean_channels: 0,
+            ..shape
+        };
+        assert!(cost_volume_s8(&none, &f, &v, huge, &mut out).is_ok());
     }
 }

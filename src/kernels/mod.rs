@@ -155,6 +155,18 @@ pub enum KernelError {
         /// The zero point given.
         zero_point: i32,
     },
+    /// A negative mean-channel multiplier (the contract's are ≥ 0).
+    NegativeMultiplier {
+        /// The multiplier given.
+        multiplier: i32,
+    },
+    /// More mean channels than cost-volume channels.
+    MeanChannels {
+        /// Mean channels given.
+        mean_channels: usize,
+        /// Channels of the cost volume.
+        channels: usize,
+    },
 }
 
 /// Largest `|input_offset|` the kernels accept (the contract uses 0 and 128).
@@ -806,6 +818,7 @@ mod no_panic {
                 planes: rng.below(3),
                 height: rng.below(3),
                 width: rng.below(3),
+                mean_channels: rng.below(4),
             };
             let table = [crate::geometry::WarpEntry {
                 column: rng.below(4) as u8,
@@ -819,6 +832,7 @@ mod no_panic {
             let nv = rng.below(4);
             let cq = CostRequant {
                 requant: rq[0],
+                mean: rq[rng.below(rq.len())],
                 zero_point: [0, -128, 5][rng.below(3)],
             };
             let _ = cost_volume_s8(&cs, input, &views[..nv], cq, &mut out);
@@ -833,6 +847,7 @@ mod no_panic {
             planes: 0,
             height: 3,
             width: 4,
+            mean_channels: 1,
         };
         let f = [0i8; 24];
         let views = [SourceView {

@@ -135,6 +135,10 @@ pub struct Model<'a> {
 /// The blob tensor holding the cost volume's zero point (optional: 0 when absent).
 pub const COST_ZERO_POINT_TENSOR: &str = "cost.zp";
 
+/// The blob tensor holding the mean channels' requantisation `[M'2, s'2, M'3, s'3]`
+/// (`m'_n = s_f / (n · s_cost)`), present when the spec has `features.mean_channels`.
+pub const COST_MEAN_TENSOR: &str = "cost.mean";
+
 /// The blob tensor holding the number of views the model was trained and calibrated for
 /// (optional: the spec's `views` when absent). A model is best on its own view count (a 3-view
 /// model fed 2 views is far worse than a 2-view one, docs/ACCURACY.md), so the server pairs
@@ -189,7 +193,8 @@ fn valid_multiplier(r: Requant) -> bool {
 /// `<layer>.s` int32 per-channel multipliers and shifts, `<layer>.k` int32 `[multiplier,
 /// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `cost.zp` int32 `[zero point]`
 /// (0 or −128; a blob without it has zero point 0, as every blob before it), `views` int32
-/// `[views trained for]` (2..=MAX_VIEWS; a blob without it has the spec's), `exp` u16 `[256]`.
+/// `[views trained for]` (2..=MAX_VIEWS; a blob without it has the spec's), `exp` u16 `[256]`;
+/// with mean channels also `cost.mean` int32 `[M'2, s'2, M'3, s'3]`.
 pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     use crate::blob::Dtype;
     for l in LAYERS.iter() {
@@ -203,6 +208,9 @@ pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     }
     f("cost.rq", Dtype::I32, 4);
     f(COST_ZERO_POINT_TENSOR, Dtype::I32, 1);
+    if config::MEAN_CHANNELS > 0 {
+        f(COST_MEAN_TENSOR, Dtype::I32, 4);
+    }
     f(VIEWS_TENSOR, Dtype::I32, 1);
     f("exp", Dtype::U16, 256);
 }
@@ -216,8 +224,20 @@ impl<'a> Model<'a> {
         let mut c = [0i32; 4];
         blob.read_i32("cost.rq", &mut c)?;
         let zero_point = read_optional_i32(&blob, COST_ZERO_POINT_TENSOR, 0)?;
-        let cost = [(c[0], c[1]), (c[2], c[3])].map(|(multiplier, shift)| CostRequant {
-            requant: Requant { multiplier, shift },
+        // Read only when the compiled spec has mean channels (its hash is the blob's).
+        let mut mean = [0i32; 4];
+        if config::MEAN_CHANNELS > 0 {
+            blob.read_i32(COST_MEAN_TENSOR, &mut mean)?;
+        }
+        let cost = [0, 1].map(|v| CostRequant {
+            requant: Requant {
+                multiplier: c[2 * v],
+                shift: c[2 * v + 1],
+            },
+            mean: Requant {
+                multiplier: mean[2 * v],
+                shift: mean[2 * v + 1],
+            },
             zero_point,
         });
         if !cost[0].zero_point_valid() {
@@ -227,11 +247,13 @@ impl<'a> Model<'a> {
         if !(2..=config::MAX_VIEWS as i32).contains(&views) {
             return Err(Error::Views { views });
         }
-        // X ≤ 3·3·128² < 2^18 for any int8 features.
-        if !cost.iter().all(|r| {
-            let r = r.requant;
-            valid_multiplier(r) && r.shift_in_range() && r.fits(1 << 18)
-        }) {
+        // X ≤ 3·3·128² < 2^18 and |Σv| ≤ 3·128 for any int8 features.
+        let valid =
+            |r: Requant, bound: i64| valid_multiplier(r) && r.shift_in_range() && r.fits(bound);
+        if !cost
+            .iter()
+            .all(|r| valid(r.requant, 1 << 18) && valid(r.mean, 3 * 128))
+        {
             return Err(Error::BadMultiplier { index: usize::MAX });
         }
         let empty = LayerParams {

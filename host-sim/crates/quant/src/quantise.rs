@@ -260,6 +260,18 @@ pub fn quantise(
         Dtype::I32,
         i32_bytes(&[r2.multiplier, r2.shift, r3.multiplier, r3.shift]),
     ));
+    if config::MEAN_CHANNELS > 0 {
+        // The mean channels: real mean s_f·Σv/n in units of s_cost.
+        let (q2, q3) = (
+            requant(s_f / (2.0 * s_cost), "cost mean (2 views)")?,
+            requant(s_f / (3.0 * s_cost), "cost mean (3 views)")?,
+        );
+        tensors.push((
+            epssn::model::COST_MEAN_TENSOR.into(),
+            Dtype::I32,
+            i32_bytes(&[q2.multiplier, q2.shift, q3.multiplier, q3.shift]),
+        ));
+    }
     tensors.push((
         epssn::model::COST_ZERO_POINT_TENSOR.into(),
         Dtype::I32,

@@ -226,7 +226,11 @@ pub fn run_folded(
                     s2 += v[idx] * v[idx];
                 }
                 let mean = s / nv;
-                cost[idx] = (s2 / nv - mean * mean).max(0.0);
+                cost[idx] = if ch + config::MEAN_CHANNELS >= c {
+                    mean.max(0.0)
+                } else {
+                    (s2 / nv - mean * mean).max(0.0)
+                };
             }
         }
     }

@@ -267,7 +267,8 @@ pub fn warp_value(f: &[i8], h: usize, w: usize, c: usize, r: usize, e: WarpEntry
 
 /// Variance cost volume `[C][N][H][W]` from the reference `[C][H][W]` and 1 or 2 sources
 /// with their warp tables `[N][W]`: `X = n·Σv² − (Σv)²`, `q = clamp(MBQM(X), 0, 127 − z)`
-/// stored as `q + z` for the zero point `z` (0 or −128).
+/// stored as `q + z` for the zero point `z` (0 or −128); the last `mean_channels` channels
+/// hold `clamp(MBQM(Σv, mean_mult), 0, 127 − z) + z` instead.
 #[allow(clippy::too_many_arguments)]
 pub fn cost_volume(
     reference: &[i8],
@@ -277,6 +278,8 @@ pub fn cost_volume(
     h: usize,
     w: usize,
     mult: Mult,
+    mean_channels: usize,
+    mean_mult: Mult,
     zero_point: i32,
 ) -> Vec<i8> {
     assert!(
@@ -298,8 +301,12 @@ pub fn cost_volume(
                     let sum_sq: i64 = vals.iter().map(|v| v * v).sum();
                     let x = n * sum_sq - sum * sum;
                     assert!(x >= 0);
-                    out[((ch * planes + j) * h + r) * w + b] =
-                        (mbqm(x, mult).clamp(0, 127 - z) + z) as i8;
+                    let q = if ch + mean_channels >= c {
+                        mbqm(sum, mean_mult)
+                    } else {
+                        mbqm(x, mult)
+                    };
+                    out[((ch * planes + j) * h + r) * w + b] = (q.clamp(0, 127 - z) + z) as i8;
                 }
             }
         }

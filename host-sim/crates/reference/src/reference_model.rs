@@ -119,6 +119,17 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
             shift: c[3],
         }
     };
+    // The mean channels' multipliers, present when the spec has mean channels.
+    let mut mean = [0i32; 4];
+    if config::MEAN_CHANNELS > 0 {
+        blob.read_i32(epssn::model::COST_MEAN_TENSOR, &mut mean)
+            .map_err(|e| anyhow!("cost.mean: {e:?}"))?;
+    }
+    let k = if n == 2 { 0 } else { 2 };
+    let mean_mult = Mult {
+        m: mean[k],
+        shift: mean[k + 1],
+    };
     // The cost volume's zero point: 0 when the blob predates it.
     let zero_point = match blob.read_i32("cost.zp", &mut c[..1]) {
         Ok(()) => c[0],
@@ -136,6 +147,8 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         config::FEATURE_RANGE_BINS,
         config::FEATURE_COLUMNS,
         mult,
+        config::MEAN_CHANNELS,
+        mean_mult,
         zero_point,
     );
     trace.cost_net.insert("cost".into(), cost.clone());

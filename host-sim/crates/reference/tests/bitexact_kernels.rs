@@ -400,13 +400,14 @@ fn random_small_cost_volumes_soft_argmax_and_heads() {
         let n_src = 1 + case % 2;
         let m = rng.mult(-10, 0);
         let zero_point = [0, -128][(case / 2) % 2];
+        let mean = (rng.below(c + 1), rng.mult(-9, 1));
         check_cost(
             &reference,
             &srcs,
             &tables,
             n_src,
             (c, planes, h, w),
-            m,
+            (m, mean),
             zero_point,
         );
 
@@ -439,13 +440,24 @@ fn check_cost(
     tables: &[Vec<WarpEntry>],
     n_src: usize,
     (c, planes, h, w): (usize, usize, usize, usize),
-    m: Mult,
+    (m, (mean_channels, mean_m)): (Mult, (usize, Mult)),
     zero_point: i32,
 ) -> Vec<i8> {
     let pairs: Vec<(&[i8], &[WarpEntry])> = (0..n_src)
         .map(|k| (srcs[k].as_slice(), tables[k].as_slice()))
         .collect();
-    let want = intref::cost_volume(reference, &pairs, c, planes, h, w, m, zero_point);
+    let want = intref::cost_volume(
+        reference,
+        &pairs,
+        c,
+        planes,
+        h,
+        w,
+        m,
+        mean_channels,
+        mean_m,
+        zero_point,
+    );
     let views: Vec<SourceView> = pairs
         .iter()
         .map(|&(features, warp)| SourceView { features, warp })
@@ -455,9 +467,11 @@ fn check_cost(
         planes,
         height: h,
         width: w,
+        mean_channels,
     };
     let cq = CostRequant {
         requant: requant(m),
+        mean: requant(mean_m),
         zero_point,
     };
     let (mut a, mut b) = (vec![0i8; want.len()], vec![0i8; want.len()]);
@@ -537,7 +551,8 @@ fn run_network(seed: u64, views: usize) {
             config::FEATURE_RANGE_BINS,
             config::FEATURE_COLUMNS,
         ),
-        cost_m,
+        // A mean of features of the cost volume's scale: m' between 1/4 and 1.
+        (cost_m, (config::MEAN_CHANNELS, rng.mult(-1, 1))),
         // The unsigned cost volume the quantiser writes: d1 and u0's skip add 128 back.
         -128,
     );
@@ -696,7 +711,16 @@ fn cost_volume_with_real_warp_tables_on_extreme_features() {
                     rng.mult(-14, 0),
                 ] {
                     for zero_point in [0, -128] {
-                        check_cost(reference, &srcs, &tables, n_src, dims, m, zero_point);
+                        let mean = (config::MEAN_CHANNELS, m);
+                        check_cost(
+                            reference,
+                            &srcs,
+                            &tables,
+                            n_src,
+                            dims,
+                            (m, mean),
+                            zero_point,
+                        );
                     }
                 }
             }
@@ -710,7 +734,7 @@ fn cost_volume_with_real_warp_tables_on_extreme_features() {
         shift: 1,
     };
     // The reference alone already differs from an invisible (0) source by 128, so every
-    // voxel saturates, whatever the tables say: at 127 (code 127 or 255).
+    // variance voxel saturates, whatever the tables say: at 127 (code 127 or 255).
     for zero_point in [0, -128] {
         let out = check_cost(
             &lo,
@@ -718,7 +742,7 @@ fn cost_volume_with_real_warp_tables_on_extreme_features() {
             &tables,
             2,
             dims,
-            one,
+            (one, (0, one)),
             zero_point,
         );
         assert!(out.iter().all(|&v| v == 127));

@@ -15,7 +15,9 @@
 //!    written as a product with a sparse `[Wf][N·Wf]` matrix (two non-zeros per column), which
 //!    gives the same sums as the two-tap gather;
 //! 4. the reference is repeated over the N planes; the cost volume is the population variance
-//!    over the views: `Σ_k (V_k − mean)² / n`, shape `[B][C][N][H][W]`;
+//!    over the views: `Σ_k (V_k − mean)² / n`, shape `[B][C][N][H][W]`; with the spec's
+//!    `features.mean_channels` = m > 0, the last m channels are the mean `max(Σ_k V_k / n, 0)`
+//!    instead (clipped at 0, like the variance, so one unsigned int8 cost volume holds both);
 //! 5. cost net `spec.cost_net` (Conv3d / ConvTranspose3d, optional BatchNorm, optional ReLU,
 //!    then `+ skip` where the skip names an earlier layer output or `"cost"`); the last layer is
 //!    the head whose output is the logits `[B][1][E][R][A]`;
@@ -134,6 +136,8 @@ pub struct Statics {
     warp: Vec<Vec<f32>>,
     feature_columns: usize,
     planes: usize,
+    /// The last `mean_channels` cost channels are the views' mean, not their variance.
+    mean_channels: usize,
     /// Soft-argmax bin ranges, metres.
     pub depth_bins: Vec<f32>,
     /// Range window start, metres.
@@ -193,6 +197,12 @@ impl Statics {
             }
             warp.push(m);
         }
+        ensure!(
+            spec.features.mean_channels <= spec.features.channels,
+            "mean_channels {} exceeds the {} feature channels",
+            spec.features.mean_channels,
+            spec.features.channels
+        );
         let statics = Self {
             spec: spec.clone(),
             feature_names: spec
@@ -211,6 +221,7 @@ impl Statics {
             warp,
             feature_columns: wf,
             planes: n,
+            mean_channels: spec.features.mean_channels as usize,
             depth_bins: grids.depth_bin_ranges.iter().map(|&r| r as f32).collect(),
             r_min: grids.r_min as f32,
             r_max: grids.r_max as f32,
@@ -666,7 +677,7 @@ impl EpssnModel {
             .reduce(|a, v| a + v)
             .expect("at least two views")
             .div_scalar(nv as f32);
-        let cost = volumes
+        let variance = volumes
             .into_iter()
             .map(|v| {
                 let d = v - mean.clone();
@@ -675,6 +686,18 @@ impl EpssnModel {
             .reduce(|a, v| a + v)
             .expect("at least two views")
             .div_scalar(nv as f32);
+        let means = st.mean_channels;
+        let cost = if means == 0 {
+            variance
+        } else {
+            Tensor::cat(
+                vec![
+                    variance.narrow(1, 0, c - means),
+                    relu(mean.narrow(1, c - means, means)),
+                ],
+                1,
+            )
+        };
         if recording {
             record("cost", cost.to_data());
         }
