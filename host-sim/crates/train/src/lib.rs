@@ -991,7 +991,8 @@ mod tests {
     #[test]
     fn cost_volume_is_the_population_variance_of_reference_and_warped_source() {
         // Single-view ablation: the reference is its own source, so the cost at (c, j, h, b) is
-        // the variance of {F[h, b], warp(F)[j, h, b]} = ((F − warp(F)) / 2)².
+        // the variance of {F[h, b], warp(F)[j, h, b]} = ((F − warp(F)) / 2)², and in the spec's
+        // mean channels (the last ones) their mean clipped at 0, max((F + warp(F)) / 2, 0).
         let spec = spec();
         let model = FloatModel::from_tensors(&spec, &init_tensors(&spec, 1)).unwrap();
         let st = model.statics();
@@ -1006,6 +1007,7 @@ mod tests {
         let [c, n, h, wf] = [8, 16, 64, 16];
         assert_eq!(f3.shape, vec![2, c, h, wf]);
         assert_eq!(cost.shape, vec![1, c, n, h, wf]);
+        let means = spec.features.mean_channels as usize;
         let mut nonzero = 0;
         for ci in 0..c {
             for j in 0..n {
@@ -1024,7 +1026,11 @@ mod tests {
                         } else {
                             0.0
                         };
-                        let want = ((at(b) - warped) / 2.0).powi(2);
+                        let want = if ci + means >= c {
+                            ((at(b) + warped) / 2.0).max(0.0)
+                        } else {
+                            ((at(b) - warped) / 2.0).powi(2)
+                        };
                         let got = cost.data[((ci * n + j) * h + hi) * wf + b];
                         assert!((got - want).abs() <= 1e-5 * (1.0 + want), "{got} vs {want}");
                         nonzero += usize::from(got > 0.0);
