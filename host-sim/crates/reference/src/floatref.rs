@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use anyhow::{anyhow, Result};
 use epssn::config::{self, LayerKind, LayerShape, LAYERS};
 use epssn::geometry::WarpEntry;
+use epssn::kernels::cost_volume_s8::CostShape;
 
 use crate::float::{fold_batch_norm, FloatWeights, WeightLayout};
 
@@ -226,7 +227,7 @@ pub fn run_folded(
                     s2 += v[idx] * v[idx];
                 }
                 let mean = s / nv;
-                cost[idx] = if ch + config::MEAN_CHANNELS >= c {
+                cost[idx] = if CostShape::EPSSN.is_mean(ch) {
                     mean.max(0.0)
                 } else {
                     (s2 / nv - mean * mean).max(0.0)
