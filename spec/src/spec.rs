@@ -181,16 +181,6 @@ pub struct LayerSpec {
     /// Name of a tensor added after the ReLU ("cost" for the cost volume).
     #[serde(default)]
     pub skip: Option<String<8>>,
-    /// A learned bias per (output channel, output plane) of a 3D layer, added with the
-    /// convolution's bias. Convolutions are blind to where along the plane (elevation) axis
-    /// they are, and the reference view is the same on every plane; this tells the network
-    /// which elevation it computes. false (the default) is one bias per channel.
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub plane_bias: bool,
-}
-
-fn is_false(v: &bool) -> bool {
-    !*v
 }
 
 /// Training recipe.

@@ -358,15 +358,8 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         }
         let t = match &args.init_from {
             Some(dir) => {
-                let mut tensors = load_safetensors(&dir.join(WEIGHTS_FILE))
+                let tensors = load_safetensors(&dir.join(WEIGHTS_FILE))
                     .with_context(|| format!("--init-from {}", dir.display()))?;
-                // A spec that adds plane biases starts them at 0: the model computes what the
-                // initial one did.
-                for (name, t) in super::init_tensors(&spec, args.seed) {
-                    if name.ends_with(".plane_bias") && !tensors.contains_key(&name) {
-                        tensors.insert(name, t);
-                    }
-                }
                 eprintln!("starting from the weights of {}", dir.display());
                 Trainer::from_checkpoint(&spec, &tensors, None, views)?
             }

@@ -109,8 +109,6 @@ pub struct Layer {
     pub conv3d: Option<Conv3d>,
     /// Present for `conv_transpose3d` layers.
     pub convt3d: Option<ConvTranspose3d>,
-    /// `[out][planes]`, present when the spec asks for a bias per plane.
-    pub plane_bias: Option<Param<Tensor<2>>>,
     /// Present when the spec asks for batch norm.
     pub bn: Option<BatchNorm>,
 }
@@ -374,9 +372,8 @@ fn arr<const N: usize>(v: &[u8]) -> Result<[usize; N]> {
     Ok(a)
 }
 
-/// The parameter shapes of one layer: `(name, shape)`. `out_planes` is the layer's output size
-/// along the plane axis (read only by a layer with `plane_bias`).
-pub fn layer_param_shapes(l: &LayerSpec, out_planes: usize) -> Vec<(String, Vec<usize>)> {
+/// The parameter shapes of one layer: `(name, shape)`.
+pub fn layer_param_shapes(l: &LayerSpec) -> Vec<(String, Vec<usize>)> {
     let (i, o) = (l.in_channels as usize, l.out_channels as usize);
     let k: Vec<usize> = l.kernel.iter().map(|&k| k as usize).collect();
     let mut w = match l.kind {
@@ -389,9 +386,6 @@ pub fn layer_param_shapes(l: &LayerSpec, out_planes: usize) -> Vec<(String, Vec<
         (format!("{n}.conv.weight"), w),
         (format!("{n}.conv.bias"), vec![o]),
     ];
-    if l.plane_bias {
-        v.push((format!("{n}.conv.plane_bias"), vec![o, out_planes]));
-    }
     if l.batch_norm {
         for p in ["gamma", "beta", "running_mean", "running_var"] {
             v.push((format!("{n}.bn.{p}"), vec![o]));
@@ -400,25 +394,12 @@ pub fn layer_param_shapes(l: &LayerSpec, out_planes: usize) -> Vec<(String, Vec<
     v
 }
 
-/// Every layer of `spec` (feature net, then cost net) with its output size along the plane
-/// axis (0 for the 2D feature layers).
-pub fn layers_with_planes(spec: &ModelSpec) -> Vec<(&LayerSpec, usize)> {
-    let mut planes = spec.planes as usize;
-    spec.feature_net
-        .iter()
-        .map(|l| (l, 0))
-        .chain(spec.cost_net.iter().map(|l| {
-            planes = l.output_size(&[planes]).first().copied().unwrap_or(0);
-            (l, planes)
-        }))
-        .collect()
-}
-
 /// Every parameter name of `spec` with its shape, in spec order.
 pub fn param_shapes(spec: &ModelSpec) -> Vec<(String, Vec<usize>)> {
-    layers_with_planes(spec)
-        .into_iter()
-        .flat_map(|(l, planes)| layer_param_shapes(l, planes))
+    spec.feature_net
+        .iter()
+        .chain(spec.cost_net.iter())
+        .flat_map(layer_param_shapes)
         .collect()
 }
 
@@ -427,11 +408,11 @@ pub fn param_shapes(spec: &ModelSpec) -> Vec<(String, Vec<usize>)> {
 pub fn init_tensors(spec: &ModelSpec, seed: u64) -> BTreeMap<String, NamedTensor> {
     let mut rng = SplitMix64::new(seed);
     let mut map = BTreeMap::new();
-    for (l, planes) in layers_with_planes(spec) {
+    for l in spec.feature_net.iter().chain(spec.cost_net.iter()) {
         let fan_in =
             l.in_channels as usize * l.kernel.iter().map(|&k| k as usize).product::<usize>();
         let bound = 1.0 / (fan_in.max(1) as f32).sqrt();
-        for (name, shape) in layer_param_shapes(l, planes) {
+        for (name, shape) in layer_param_shapes(l) {
             let count = shape.iter().product();
             let data: Vec<f32> = if name.ends_with(".conv.weight") || name.ends_with(".conv.bias") {
                 (0..count)
@@ -457,11 +438,10 @@ pub fn init_tensors(spec: &ModelSpec, seed: u64) -> BTreeMap<String, NamedTensor
 
 fn build_layer(
     l: &LayerSpec,
-    out_planes: usize,
     map: &BTreeMap<String, NamedTensor>,
     device: &Device,
 ) -> Result<Layer> {
-    for (name, shape) in layer_param_shapes(l, out_planes) {
+    for (name, shape) in layer_param_shapes(l) {
         expect_shape(map, &name, &shape)?;
     }
     let n = &l.name;
@@ -474,9 +454,6 @@ fn build_layer(
         conv2d: None,
         conv3d: None,
         convt3d: None,
-        plane_bias: l
-            .plane_bias
-            .then(|| param::<2>(get("conv.plane_bias"), device)),
         bn: None,
     };
     match l.kind {
@@ -577,12 +554,16 @@ impl EpssnModel {
         device: &Device,
     ) -> Result<Self> {
         let statics = Statics::new(spec)?;
-        let mut layers = layers_with_planes(spec)
-            .into_iter()
-            .map(|(l, planes)| build_layer(l, planes, tensors, device))
-            .collect::<Result<Vec<_>>>()?;
-        let cost = layers.split_off(spec.feature_net.len());
-        let feature = layers;
+        let feature = spec
+            .feature_net
+            .iter()
+            .map(|l| build_layer(l, tensors, device))
+            .collect::<Result<_>>()?;
+        let cost = spec
+            .cost_net
+            .iter()
+            .map(|l| build_layer(l, tensors, device))
+            .collect::<Result<_>>()?;
         Ok(Self {
             net: EpssnNet { feature, cost },
             statics,
@@ -616,9 +597,6 @@ impl EpssnModel {
             map.insert(format!("{n}.conv.weight"), w);
             if let Some(b) = b {
                 map.insert(format!("{n}.conv.bias"), b);
-            }
-            if let Some(p) = &layer.plane_bias {
-                map.insert(format!("{n}.conv.plane_bias"), export(p));
             }
             if let Some(bn) = &layer.bn {
                 map.insert(format!("{n}.bn.gamma"), export(&bn.gamma));
@@ -735,10 +713,6 @@ impl EpssnModel {
             } else {
                 bail!("cost layer {i} is not 3D");
             };
-            if let Some(p) = &layer.plane_bias {
-                let [o, n] = p.val().dims();
-                y = y + p.val().reshape([1, o, n, 1, 1]);
-            }
             if let Some(bn) = &layer.bn {
                 y = bn.forward(y);
             }
