@@ -70,6 +70,11 @@ pub struct TrainArgs {
     /// the rate used, and a resumed run must pass the same one.
     #[arg(long)]
     pub lr: Option<f64>,
+    /// Weight of a two-hot cross-entropy term on the range bins beside the paper's L1 loss
+    /// (train.rs; 0: L1 alone). Validation loss stays the L1 term. A resumed run must pass the
+    /// same weight.
+    #[arg(long, default_value_t = 0.0)]
+    pub ce_weight: f32,
 }
 
 /// Arguments of `host-sim eval`.
@@ -137,6 +142,9 @@ struct TrainState {
     /// The learning rate before the halving; absent in checkpoints written before `--lr`.
     #[serde(default)]
     lr: Option<f64>,
+    /// The cross-entropy term's weight; 0 in checkpoints written before `--ce-weight`.
+    #[serde(default)]
+    ce_weight: f32,
 }
 
 fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
@@ -229,6 +237,7 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
         epochs: epoch,
         views,
         lr: None,
+        ce_weight: 0.0,
     })
 }
 
@@ -318,6 +327,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             ckpt_lr == lr,
             "checkpoint was made with --lr {ckpt_lr}: pass the same rate"
         );
+        ensure!(
+            state.ce_weight == args.ce_weight,
+            "checkpoint was made with --ce-weight {}: pass the same weight",
+            state.ce_weight
+        );
         let tensors = load_safetensors(&ckpt.join(WEIGHTS_FILE))?;
         let t = Trainer::from_checkpoint(&spec, &tensors, Some(&ckpt.join("optim.bpk")), views)?;
         eprintln!(
@@ -329,6 +343,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             TrainState {
                 epochs: args.epochs,
                 lr: Some(lr),
+                ce_weight: args.ce_weight,
                 ..state
             },
         )
@@ -349,6 +364,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             TrainState {
                 epochs: args.epochs,
                 lr: Some(lr),
+                ce_weight: args.ce_weight,
                 ..state
             },
         )
@@ -378,9 +394,16 @@ pub fn train(args: &TrainArgs) -> Result<()> {
             epochs: args.epochs,
             views,
             lr: Some(lr),
+            ce_weight: args.ce_weight,
         };
         (t, s)
     };
+    ensure!(
+        args.ce_weight.is_finite() && args.ce_weight >= 0.0,
+        "--ce-weight must be 0 or positive, not {}",
+        args.ce_weight
+    );
+    trainer.ce_weight = args.ce_weight;
     let elapsed_before = state.elapsed_s;
     let pb = ProgressBar::new(total as u64);
     pb.set_style(
@@ -462,8 +485,13 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         "steps": state.global_step,
         "lr": lr,
         "lr_halved_at_step": (frac * total as f64).ceil() as usize,
-        "loss": "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)|, w = lambda on mask pixels, 1 elsewhere",
+        "loss": if args.ce_weight > 0.0 {
+            "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)| + ce_weight * mean over pixels of w*CE(two-hot(clamp(d)), softmax over range bins), w = lambda on mask pixels, 1 elsewhere; val_loss is the first term"
+        } else {
+            "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)|, w = lambda on mask pixels, 1 elsewhere"
+        },
         "lambda": spec.training.lambda,
+        "ce_weight": args.ce_weight,
         "final_train_loss": last.map(|r| r.train_loss),
         "final_val_loss": last.map(|r| r.val_loss),
         "wall_time_s": state.elapsed_s,

@@ -3,6 +3,13 @@
 //! Loss (exact formula): with prediction `d̂`, label `d` clamped to `[r_min, r_max]` and mask
 //! `m ∈ {0, 1}` per pixel, `w = 1 + (λ − 1)·m` (λ on in-window pixels, 1 elsewhere) and
 //! `loss = mean over all B·E·A pixels of w · |d̂ − clamp(d)|` (metres).
+//!
+//! With `--ce-weight c > 0` the training loss adds `c · mean over pixels of w · CE(q, p)`: the
+//! cross-entropy between the soft-argmax's distribution `p` over the range bins and the label's
+//! two-hot `q` (the two bins around `clamp(d)`, weighted so that `Σ q_r · bin_r = clamp(d)`).
+//! The L1 term alone is met by any distribution with the right mean, e.g. one spread over
+//! several surfaces; the CE term asks for the mass at the labelled range. Validation loss stays
+//! the L1 term, so curves with and without it compare.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -10,6 +17,7 @@ use std::path::Path;
 use anyhow::{anyhow, ensure, Context, Result};
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::activation::log_softmax;
 use burn::tensor::{Device, Tensor, TensorData};
 use epssn::spec::ModelSpec;
 
@@ -28,6 +36,52 @@ pub fn masked_l1(
     let target = depth.clamp(r_min, r_max);
     let w = mask.mul_scalar(lambda - 1.0).add_scalar(1.0);
     ((pred - target).abs() * w).mean()
+}
+
+/// Two-hot labels `[B][E][R][A]` of the depth maps `depths` (`[E][A]` each, metres) over the
+/// soft-argmax bins `bins` (ascending centres, metres): per pixel the two bins around the
+/// clamped label, weighted so that their mean is the label.
+pub fn two_hot_labels(
+    depths: &[&[f32]],
+    (e, a): (usize, usize),
+    bins: &[f32],
+    r_min: f32,
+    r_max: f32,
+) -> Vec<f32> {
+    let r = bins.len();
+    let mut q = vec![0f32; depths.len() * e * r * a];
+    if r < 2 {
+        return q;
+    }
+    for (i, depth) in depths.iter().enumerate() {
+        for (p, &d) in depth.iter().enumerate().take(e * a) {
+            let d = d.clamp(r_min, r_max);
+            let (row, col) = (p / a, p % a);
+            let hi = bins.partition_point(|&x| x <= d).clamp(1, r - 1);
+            let (b0, b1) = (bins[hi - 1], bins[hi]);
+            let t = ((d - b0) / (b1 - b0)).clamp(0.0, 1.0);
+            let at = |bin: usize| ((i * e + row) * r + bin) * a + col;
+            q[at(hi - 1)] = 1.0 - t;
+            q[at(hi)] = t;
+        }
+    }
+    q
+}
+
+/// The cross-entropy term (see the module docs), a scalar tensor: `logits` `[B][1][E][R][A]`,
+/// two-hot labels `q` of the same shape, mask `[B][E][A]`.
+pub fn masked_two_hot_ce(
+    logits: Tensor<5>,
+    q: Tensor<5>,
+    mask: Tensor<3>,
+    lambda: f32,
+) -> Tensor<1> {
+    let [b, _, e, _, a] = logits.dims();
+    let w = mask
+        .mul_scalar(lambda - 1.0)
+        .add_scalar(1.0)
+        .reshape([b, 1, e, 1, a]);
+    ((q * log_softmax(logits, 3)).sum_dim(3).neg() * w).mean()
 }
 
 /// Batch tensors: views (`views` of them; one view is repeated as its own source), depth, mask.
@@ -83,6 +137,8 @@ pub struct Trainer {
     pub lambda: f32,
     /// Views fed to the model (1 = reference as its own source).
     pub views: usize,
+    /// Weight of the two-hot cross-entropy term (0: the paper's L1 loss alone).
+    pub ce_weight: f32,
     device: Device,
 }
 
@@ -132,6 +188,7 @@ impl Trainer {
             optim: AdamConfig::new().init(),
             lambda,
             views,
+            ce_weight: 0.0,
             device,
         })
     }
@@ -141,7 +198,22 @@ impl Trainer {
         let (views, depth, mask) = batch_tensors(&self.model, batch, self.views, &self.device)?;
         let st = &self.model.statics;
         let out = self.model.forward(&views, None)?;
-        let loss = masked_l1(out.depth, depth, mask, self.lambda, st.r_min, st.r_max);
+        let mut loss = masked_l1(
+            out.depth,
+            depth,
+            mask.clone(),
+            self.lambda,
+            st.r_min,
+            st.r_max,
+        );
+        if self.ce_weight > 0.0 {
+            let [b, _, e, r, a] = out.logits.dims();
+            let depths: Vec<&[f32]> = batch.iter().map(|s| s.depth.as_slice()).collect();
+            let q = two_hot_labels(&depths, (e, a), &st.depth_bins, st.r_min, st.r_max);
+            let q = Tensor::<5>::from_data(TensorData::new(q, [b, 1, e, r, a]), &self.device);
+            let ce = masked_two_hot_ce(out.logits, q, mask, self.lambda);
+            loss = loss + ce.mul_scalar(self.ce_weight);
+        }
         let value = scalar(loss.clone().detach())?;
         ensure!(value.is_finite(), "loss is {value}");
         let grads = loss.backward();
@@ -193,5 +265,34 @@ pub fn lr_at(lr: f64, fraction: f64, step: usize, total: usize) -> f64 {
         lr
     } else {
         lr * 0.5
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_hot_labels_sum_to_one_and_mean_the_clamped_label() {
+        let bins: Vec<f32> = (0..10).map(|i| 1.9 + 0.2 * i as f32).collect();
+        let (r_min, r_max) = (2.0, 3.5);
+        let depth = [1.5f32, 2.0, 2.37, 3.1, 3.5, 9.0];
+        let q = two_hot_labels(&[&depth, &depth[..]], (2, 3), &bins, r_min, r_max);
+        assert_eq!(q.len(), 2 * 2 * 10 * 3);
+        for i in 0..2 {
+            for (p, &d) in depth.iter().enumerate() {
+                let (row, col) = (p / 3, p % 3);
+                let at = |bin: usize| ((i * 2 + row) * 10 + bin) * 3 + col;
+                let sum: f32 = (0..10).map(|k| q[at(k)]).sum();
+                let mean: f32 = (0..10).map(|k| q[at(k)] * bins[k]).sum();
+                let nonzero = (0..10).filter(|&k| q[at(k)] != 0.0).count();
+                assert!((sum - 1.0).abs() < 1e-6, "pixel {p}: sum {sum}");
+                assert!(
+                    (mean - d.clamp(r_min, r_max)).abs() < 1e-5,
+                    "pixel {p}: {mean}"
+                );
+                assert!((1..=2).contains(&nonzero), "pixel {p}: {nonzero} bins");
+            }
+        }
     }
 }
