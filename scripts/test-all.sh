@@ -59,14 +59,15 @@ cargo test --workspace
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
-"$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim" sil --json
+host_sim="$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim"
+"$host_sim" sil --json
 
-step "three-view model (weights/general-3view, spec 2: weights/epssn-s-v2.json) in QEMU: SIL on data/demo-3view"
-# A model of the spec before features.mean_channels, so its own build (no burn, its own target
-# directories); the blob's view count makes the device pair frames in threes (0, +7, +14
-# degrees), with the budgets of weights/budgets-epssn-s-v2.json (one more warped view per map).
-EPSSN_SPEC=weights/epssn-s-v2.json cargo run -q -p epssn-sil --target-dir target/epssn-s-v2 -- \
-    --recording data/demo-3view/recording.aris --faults 0 --json
+step "three-view model (weights/general-3view) in QEMU: SIL on data/demo-3view"
+# The same build with the three-view blob embedded: its view count makes the device pair frames
+# in threes (0, +7, +14 degrees); its budgets allow one more warped view per map.
+EPSSN_BLOB="$PWD/weights/general-3view/epssn-s.q8.bin" "$host_sim" sil \
+    --recording data/demo-3view/recording.aris --budgets weights/general-3view/budgets.json \
+    --faults 0 --json
 
 step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance tests, QEMU, SIL"
 # The second configuration from the same code, in its own target directories (target/epssn-p,

@@ -52,34 +52,16 @@ fn demo_run_is_bit_exact_and_scores_both_models() {
     }
 }
 
-/// The shipped model's weights folder with its blob's `views` tensor set to 3: a three-view
-/// blob of this build's spec. (The trained three-view model, `weights/general-3view`, is a
-/// model of spec 2, which this build does not run; CI runs it in QEMU in its own build.)
-fn three_view_weights() -> tempfile::TempDir {
-    let root = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
-    let shipped = root.join("weights/general");
-    let dir = tempfile::tempdir().unwrap();
-    for f in ["model.safetensors", "spec.json", "manifest.json"] {
-        std::fs::copy(shipped.join(f), dir.path().join(f)).unwrap();
-    }
-    let blob = std::fs::read(shipped.join(epssn::config::BLOB_FILE_NAME)).unwrap();
-    let three = epssn_tests::with_i32_tensor(&blob, epssn::model::VIEWS_TENSOR, Some(3));
-    std::fs::write(dir.path().join(epssn::config::BLOB_FILE_NAME), three).unwrap();
-    dir
-}
-
-/// A blob that says 3 views: `run` groups the three-view demo's frames in threes (0, +7, +14
-/// degrees) without `--views`, bit-exact against the integer reference; the same weights
-/// refuse index pairs (two views).
+/// The three-view model (its blob says 3 views): `run` groups the three-view demo's frames in
+/// threes (0, +7, +14 degrees) without `--views`, bit-exact against the integer reference; the
+/// same weights refuse index pairs (two views).
 #[test]
 fn a_three_view_blob_runs_on_view_triples() {
     let out = tempfile::tempdir().unwrap();
-    let weights = three_view_weights();
-    let weights = weights.path().to_str().unwrap();
     let common = [
         "run",
         "--weights",
-        weights,
+        "weights/general-3view",
         "--recording",
         "data/demo-3view/recording.aris",
         "--gt",
