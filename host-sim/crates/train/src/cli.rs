@@ -74,7 +74,7 @@ pub struct TrainArgs {
     /// (train.rs; 0: L1 alone). Validation loss stays the L1 term. A resumed run must pass the
     /// same weight.
     #[arg(long, default_value_t = 0.0)]
-    pub ce_weight: f32,
+    pub ce_weight: f64,
 }
 
 /// Arguments of `host-sim eval`.
@@ -144,7 +144,7 @@ struct TrainState {
     lr: Option<f64>,
     /// The cross-entropy term's weight; 0 in checkpoints written before `--ce-weight`.
     #[serde(default)]
-    ce_weight: f32,
+    ce_weight: f64,
 }
 
 fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
@@ -403,7 +403,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         "--ce-weight must be 0 or positive, not {}",
         args.ce_weight
     );
-    trainer.ce_weight = args.ce_weight;
+    trainer.ce_weight = args.ce_weight as f32;
     let elapsed_before = state.elapsed_s;
     let pb = ProgressBar::new(total as u64);
     pb.set_style(
