@@ -305,6 +305,11 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         lr.is_finite() && lr > 0.0,
         "--lr must be a positive number, not {lr}"
     );
+    ensure!(
+        args.ce_weight.is_finite() && args.ce_weight >= 0.0,
+        "--ce-weight must be 0 or positive, not {}",
+        args.ce_weight
+    );
     let frac = spec.training.lr_halved_at_fraction;
 
     if let Some(steps) = args.bench_steps {
@@ -398,11 +403,6 @@ pub fn train(args: &TrainArgs) -> Result<()> {
         };
         (t, s)
     };
-    ensure!(
-        args.ce_weight.is_finite() && args.ce_weight >= 0.0,
-        "--ce-weight must be 0 or positive, not {}",
-        args.ce_weight
-    );
     trainer.ce_weight = args.ce_weight as f32;
     let elapsed_before = state.elapsed_s;
     let pb = ProgressBar::new(total as u64);

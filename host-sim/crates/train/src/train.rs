@@ -34,8 +34,12 @@ pub fn masked_l1(
     r_max: f32,
 ) -> Tensor<1> {
     let target = depth.clamp(r_min, r_max);
-    let w = mask.mul_scalar(lambda - 1.0).add_scalar(1.0);
-    ((pred - target).abs() * w).mean()
+    ((pred - target).abs() * pixel_weights(mask, lambda)).mean()
+}
+
+/// The loss's pixel weights `w = 1 + (λ − 1)·m` (λ on in-window pixels, 1 elsewhere), `[B][E][A]`.
+fn pixel_weights(mask: Tensor<3>, lambda: f32) -> Tensor<3> {
+    mask.mul_scalar(lambda - 1.0).add_scalar(1.0)
 }
 
 /// Two-hot labels `[B][E][R][A]` of the depth maps `depths` (`[E][A]` each, metres) over the
@@ -77,10 +81,7 @@ pub fn masked_two_hot_ce(
     lambda: f32,
 ) -> Tensor<1> {
     let [b, _, e, _, a] = logits.dims();
-    let w = mask
-        .mul_scalar(lambda - 1.0)
-        .add_scalar(1.0)
-        .reshape([b, 1, e, 1, a]);
+    let w = pixel_weights(mask, lambda).reshape([b, 1, e, 1, a]);
     ((q * log_softmax(logits, 3)).sum_dim(3).neg() * w).mean()
 }
 
