@@ -108,6 +108,14 @@ pub struct FeatureSpec {
     /// 0 (the default) is the variance-only cost volume of MVSNet.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub mean_channels: u16,
+    /// How many channels just before the mean channels enter the cost volume as the reference
+    /// minus the sources' mean, clipped at 0 (`max(V_0 − Σ_{k≥1} V_k / (n − 1), 0)`), instead
+    /// of their variance. The variance loses the sign of the mismatch, which says whether the
+    /// surface lies above or below a plane when the disparity is a fraction of a column; the
+    /// feature net can learn a channel and its negation to keep both signs. A trainer option
+    /// under study (docs/ACCURACY.md); the device's build rejects it. 0 (the default): none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub difference_channels: u16,
     /// Azimuth stride of the feature maps relative to the input, when finer than `stride`
     /// (0, the default: the same as `stride`). At the 7° roll baseline the stereo cue is an
     /// azimuth shift of under half a stride-4 column, so the views are warped and compared at

@@ -142,6 +142,9 @@ pub struct Statics {
     /// The last `mean_channels` feature channels enter the cost volume as the views' mean,
     /// not their variance.
     mean_channels: usize,
+    /// The `difference_channels` feature channels before the mean channels enter as the
+    /// reference minus the sources' mean, clipped at 0.
+    difference_channels: usize,
     /// Feature sub-columns folded into each cost column (`features.fold()`).
     fold: usize,
     /// Soft-argmax bin ranges, metres.
@@ -204,9 +207,11 @@ impl Statics {
             warp.push(m);
         }
         ensure!(
-            spec.features.mean_channels <= spec.features.channels,
-            "mean_channels {} exceeds the {} feature channels",
+            spec.features.mean_channels as usize + spec.features.difference_channels as usize
+                <= spec.features.channels as usize,
+            "mean_channels {} and difference_channels {} exceed the {} feature channels",
             spec.features.mean_channels,
+            spec.features.difference_channels,
             spec.features.channels
         );
         let statics = Self {
@@ -228,6 +233,7 @@ impl Statics {
             feature_columns: wf,
             planes: n,
             mean_channels: spec.features.mean_channels as usize,
+            difference_channels: spec.features.difference_channels as usize,
             fold: spec.features.fold() as usize,
             depth_bins: grids.depth_bin_ranges.iter().map(|&r| r as f32).collect(),
             r_min: grids.r_min as f32,
@@ -681,6 +687,7 @@ impl EpssnModel {
             .narrow(0, 0, b)
             .unsqueeze_dim::<5>(2)
             .expand([b, c, n, h, wf]);
+        let reference_copy = reference.clone();
         let mut volumes = vec![reference];
         for k in 1..nv {
             volumes.push(st.warp(x.clone().narrow(0, k * b, b), k)?);
@@ -700,17 +707,26 @@ impl EpssnModel {
             .reduce(|a, v| a + v)
             .expect("at least two views")
             .div_scalar(nv as f32);
-        let means = st.mean_channels;
-        let cost = if means == 0 {
-            variance
+        let (means, diffs) = (st.mean_channels, st.difference_channels);
+        let var_channels = c - means - diffs;
+        let mut parts = Vec::new();
+        if var_channels > 0 {
+            parts.push(variance.narrow(1, 0, var_channels));
+        }
+        if diffs > 0 {
+            // Reference minus the sources' mean: (n·mean − V_0)/(n − 1) is the sources' mean.
+            let n_src = (nv - 1) as f32;
+            let sources = (mean.clone().mul_scalar(nv as f32) - reference_copy.clone())
+                .div_scalar(n_src);
+            parts.push(relu((reference_copy - sources).narrow(1, var_channels, diffs)));
+        }
+        if means > 0 {
+            parts.push(relu(mean.narrow(1, c - means, means)));
+        }
+        let cost = if parts.len() == 1 {
+            parts.pop().expect("one part")
         } else {
-            Tensor::cat(
-                vec![
-                    variance.narrow(1, 0, c - means),
-                    relu(mean.narrow(1, c - means, means)),
-                ],
-                1,
-            )
+            Tensor::cat(parts, 1)
         };
         // Fold the sub-columns of each feature channel into channels: cost channel c·fold + s
         // is sub-column s of channel c.
@@ -1037,6 +1053,7 @@ mod tests {
         assert_eq!(f3.shape, vec![2, c, h, wf]);
         assert_eq!(cost.shape, vec![1, c * fold, n, h, wc]);
         let means = spec.features.mean_channels as usize;
+        let diffs = spec.features.difference_channels as usize;
         let mut nonzero = 0;
         for ci in 0..c {
             for j in 0..n {
@@ -1057,6 +1074,8 @@ mod tests {
                         };
                         let want = if ci + means >= c {
                             ((at(b) + warped) / 2.0).max(0.0)
+                        } else if ci + means + diffs >= c {
+                            (at(b) - warped).max(0.0)
                         } else {
                             ((at(b) - warped) / 2.0).powi(2)
                         };
@@ -1074,6 +1093,21 @@ mod tests {
     #[test]
     fn cost_volume_is_the_population_variance_of_reference_and_warped_source() {
         check_cost_volume(&spec());
+    }
+
+    #[test]
+    fn difference_channels_hold_the_clipped_reference_minus_source() {
+        for candidate in [
+            &include_bytes!("../../../../weights/candidates/difference-2.json")[..],
+            &include_bytes!("../../../../weights/candidates/difference-4.json")[..],
+        ] {
+            let spec = parse_spec(candidate).unwrap();
+            assert!(spec.features.difference_channels > 0);
+            check_cost_volume(&spec);
+        }
+        let mut bad = spec();
+        bad.features.difference_channels = 5;
+        assert!(Statics::new(&bad).is_err());
     }
 
     #[test]
