@@ -716,9 +716,13 @@ impl EpssnModel {
         if diffs > 0 {
             // Reference minus the sources' mean: (n·mean − V_0)/(n − 1) is the sources' mean.
             let n_src = (nv - 1) as f32;
-            let sources = (mean.clone().mul_scalar(nv as f32) - reference_copy.clone())
-                .div_scalar(n_src);
-            parts.push(relu((reference_copy - sources).narrow(1, var_channels, diffs)));
+            let sources =
+                (mean.clone().mul_scalar(nv as f32) - reference_copy.clone()).div_scalar(n_src);
+            parts.push(relu((reference_copy - sources).narrow(
+                1,
+                var_channels,
+                diffs,
+            )));
         }
         if means > 0 {
             parts.push(relu(mean.narrow(1, c - means, means)));
