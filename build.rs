@@ -65,16 +65,6 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     let group = beams / b;
     let stride = spec.features.stride as usize;
     check(
-        spec.features.difference_channels == 0,
-        "features.difference_channels is a trainer option under study; the library's cost \
-         volume kernels do not compute it",
-    );
-    check(
-        spec.features.fold() == 1,
-        "features.azimuth_stride finer than features.stride is a trainer option under study; \
-         the library's kernels do not fold feature sub-columns into cost channels",
-    );
-    check(
         r % stride == 0 && b % stride == 0,
         "input size must be a multiple of the stride",
     );

@@ -18,8 +18,7 @@ pub const MAX_WARP: usize = 64 * 64;
 pub enum GridError {
     /// The beam table has a different number of beams than the spec.
     BeamCount,
-    /// Beams are not a multiple of input columns, the input is not a multiple of the stride, or
-    /// the stride not a multiple of the azimuth stride.
+    /// Beams are not a multiple of input columns, or the input is not a multiple of the stride.
     Divisibility,
     /// A grid is larger than [`MAX_GRID`] or a warp table larger than [`MAX_WARP`].
     TooLarge,
@@ -42,7 +41,7 @@ pub struct ModelGrids {
     pub beam_azimuths: Vec<f64, MAX_GRID>,
     /// Azimuth of each input column (mean of its beams); also the depth map's columns.
     pub input_azimuths: Vec<f64, MAX_GRID>,
-    /// Azimuth of each feature column (mean of its `features.azimuth_stride()` input columns).
+    /// Azimuth of each feature column (mean of its `stride` input columns).
     pub feature_azimuths: Vec<f64, MAX_GRID>,
     /// Centre range of each input range bin, metres.
     pub input_ranges: Vec<f64, MAX_GRID>,
@@ -75,22 +74,14 @@ impl ModelGrids {
         let r = spec.input.range_bins as usize;
         let b = spec.input.beam_columns as usize;
         let stride = spec.features.stride as usize;
-        let az_stride = spec.features.azimuth_stride() as usize;
-        if b == 0
-            || stride == 0
-            || az_stride == 0
-            || beams % b != 0
-            || r % stride != 0
-            || b % stride != 0
-            || stride % az_stride != 0
-        {
+        if b == 0 || stride == 0 || beams % b != 0 || r % stride != 0 || b % stride != 0 {
             return Err(GridError::Divisibility);
         }
         let group = beams / b;
         let beam_azimuths = collect(beams, |i| geometry::deg_to_rad(beam_centres_deg[i]))?;
         let input_azimuths = collect(b, |k| geometry::grouped_azimuth(&beam_azimuths, group, k))?;
-        let feature_azimuths = collect(b / az_stride, |k| {
-            geometry::grouped_azimuth(&input_azimuths, az_stride, k)
+        let feature_azimuths = collect(b / stride, |k| {
+            geometry::grouped_azimuth(&input_azimuths, stride, k)
         })?;
         let half = geometry::deg_to_rad(spec.sonar.elevation_half_aperture_deg);
         let grid = geometry::Grid {

@@ -108,44 +108,6 @@ pub struct FeatureSpec {
     /// 0 (the default) is the variance-only cost volume of MVSNet.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub mean_channels: u16,
-    /// How many channels just before the mean channels enter the cost volume as the reference
-    /// minus the sources' mean, clipped at 0 (`max(V_0 − Σ_{k≥1} V_k / (n − 1), 0)`), instead
-    /// of their variance. The variance loses the sign of the mismatch, which says whether the
-    /// surface lies above or below a plane when the disparity is a fraction of a column; the
-    /// feature net can learn a channel and its negation to keep both signs. A trainer option
-    /// under study (docs/ACCURACY.md); the device's build rejects it. 0 (the default): none.
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub difference_channels: u16,
-    /// Azimuth stride of the feature maps relative to the input, when finer than `stride`
-    /// (0, the default: the same as `stride`). At the 7° roll baseline the stereo cue is an
-    /// azimuth shift of under half a stride-4 column, so the views are warped and compared at
-    /// this finer stride, and the cost volume folds the `stride / azimuth_stride` sub-columns
-    /// of each channel into channels (cost channel `c · fold + s`): it keeps the stride-`stride`
-    /// grid, and holds `channels · fold` channels. A trainer option under study
-    /// (docs/ACCURACY.md); the device's build rejects it.
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub azimuth_stride: u16,
-}
-
-impl FeatureSpec {
-    /// The feature maps' azimuth stride relative to the input.
-    pub fn azimuth_stride(&self) -> u16 {
-        if self.azimuth_stride == 0 {
-            self.stride
-        } else {
-            self.azimuth_stride
-        }
-    }
-
-    /// Feature sub-columns folded into each cost-volume column (1 without `azimuth_stride`).
-    pub fn fold(&self) -> u16 {
-        self.stride / self.azimuth_stride().max(1)
-    }
-
-    /// Channels of the cost volume: `channels · fold`.
-    pub fn cost_channels(&self) -> u16 {
-        self.channels.saturating_mul(self.fold())
-    }
 }
 
 fn is_zero(v: &u16) -> bool {

@@ -18,9 +18,6 @@
 //!    over the views: `Σ_k (V_k − mean)² / n`, shape `[B][C][N][H][W]`; with the spec's
 //!    `features.mean_channels` = m > 0, the last m channels are the mean `max(Σ_k V_k / n, 0)`
 //!    instead (clipped at 0, like the variance, so one unsigned int8 cost volume holds both);
-//!    with `features.azimuth_stride` finer than `stride` the views are compared at the finer
-//!    columns and each channel's `fold` sub-columns become channels (`c · fold + s`), so the
-//!    cost volume keeps the stride-`stride` grid (a study option; the device rejects it);
 //! 5. cost net `spec.cost_net` (Conv3d / ConvTranspose3d, optional BatchNorm, optional ReLU,
 //!    then `+ skip` where the skip names an earlier layer output or `"cost"`); the last layer is
 //!    the head whose output is the logits `[B][1][E][R][A]`;
@@ -139,14 +136,8 @@ pub struct Statics {
     warp: Vec<Vec<f32>>,
     feature_columns: usize,
     planes: usize,
-    /// The last `mean_channels` feature channels enter the cost volume as the views' mean,
-    /// not their variance.
+    /// The last `mean_channels` cost channels are the views' mean, not their variance.
     mean_channels: usize,
-    /// The `difference_channels` feature channels before the mean channels enter as the
-    /// reference minus the sources' mean, clipped at 0.
-    difference_channels: usize,
-    /// Feature sub-columns folded into each cost column (`features.fold()`).
-    fold: usize,
     /// Soft-argmax bin ranges, metres.
     pub depth_bins: Vec<f32>,
     /// Range window start, metres.
@@ -207,11 +198,9 @@ impl Statics {
             warp.push(m);
         }
         ensure!(
-            spec.features.mean_channels as usize + spec.features.difference_channels as usize
-                <= spec.features.channels as usize,
-            "mean_channels {} and difference_channels {} exceed the {} feature channels",
+            spec.features.mean_channels <= spec.features.channels,
+            "mean_channels {} exceeds the {} feature channels",
             spec.features.mean_channels,
-            spec.features.difference_channels,
             spec.features.channels
         );
         let statics = Self {
@@ -233,8 +222,6 @@ impl Statics {
             feature_columns: wf,
             planes: n,
             mean_channels: spec.features.mean_channels as usize,
-            difference_channels: spec.features.difference_channels as usize,
-            fold: spec.features.fold() as usize,
             depth_bins: grids.depth_bin_ranges.iter().map(|&r| r as f32).collect(),
             r_min: grids.r_min as f32,
             r_max: grids.r_max as f32,
@@ -273,15 +260,8 @@ impl Statics {
                 && hw == [s.input.range_bins as usize / stride, self.feature_columns],
             "feature net output {c}×{hw:?} does not match the spec's features"
         );
-        ensure!(
-            self.fold >= 1 && self.feature_columns % self.fold == 0,
-            "{} feature columns do not fold by {}",
-            self.feature_columns,
-            self.fold
-        );
         let mut shapes: BTreeMap<String, (usize, Vec<usize>)> = BTreeMap::new();
-        c *= self.fold;
-        let mut dims = vec![self.planes, hw[0], hw[1] / self.fold];
+        let mut dims = vec![self.planes, hw[0], hw[1]];
         shapes.insert("cost".into(), (c, dims.clone()));
         for (i, l) in s.cost_net.iter().enumerate() {
             ensure!(
@@ -687,7 +667,6 @@ impl EpssnModel {
             .narrow(0, 0, b)
             .unsqueeze_dim::<5>(2)
             .expand([b, c, n, h, wf]);
-        let reference_copy = reference.clone();
         let mut volumes = vec![reference];
         for k in 1..nv {
             volumes.push(st.warp(x.clone().narrow(0, k * b, b), k)?);
@@ -707,40 +686,17 @@ impl EpssnModel {
             .reduce(|a, v| a + v)
             .expect("at least two views")
             .div_scalar(nv as f32);
-        let (means, diffs) = (st.mean_channels, st.difference_channels);
-        let var_channels = c - means - diffs;
-        let mut parts = Vec::new();
-        if var_channels > 0 {
-            parts.push(variance.narrow(1, 0, var_channels));
-        }
-        if diffs > 0 {
-            // Reference minus the sources' mean: (n·mean − V_0)/(n − 1) is the sources' mean.
-            let n_src = (nv - 1) as f32;
-            let sources =
-                (mean.clone().mul_scalar(nv as f32) - reference_copy.clone()).div_scalar(n_src);
-            parts.push(relu((reference_copy - sources).narrow(
+        let means = st.mean_channels;
+        let cost = if means == 0 {
+            variance
+        } else {
+            Tensor::cat(
+                vec![
+                    variance.narrow(1, 0, c - means),
+                    relu(mean.narrow(1, c - means, means)),
+                ],
                 1,
-                var_channels,
-                diffs,
-            )));
-        }
-        if means > 0 {
-            parts.push(relu(mean.narrow(1, c - means, means)));
-        }
-        let cost = if parts.len() == 1 {
-            parts.pop().expect("one part")
-        } else {
-            Tensor::cat(parts, 1)
-        };
-        // Fold the sub-columns of each feature channel into channels: cost channel c·fold + s
-        // is sub-column s of channel c.
-        let cost = if st.fold > 1 {
-            let wc = wf / st.fold;
-            cost.reshape([b, c, n, h, wc, st.fold])
-                .permute([0, 1, 5, 2, 3, 4])
-                .reshape([b, c * st.fold, n, h, wc])
-        } else {
-            cost
+            )
         };
         if recording {
             record("cost", cost.to_data());
@@ -1032,32 +988,26 @@ mod tests {
         assert!(Statics::new(&bad).is_err());
     }
 
-    /// Single-view ablation: the reference is its own source, so the cost of channel `ci` at
-    /// (j, h, fine column b) is the variance of {F[h, b], warp(F)[j, h, b]} = ((F − warp(F)) / 2)²,
-    /// and in the spec's mean channels (the last ones) their mean clipped at 0,
-    /// max((F + warp(F)) / 2, 0); it sits at cost channel `ci · fold + b % fold`, column
-    /// `b / fold`.
-    fn check_cost_volume(spec: &ModelSpec) {
-        let model = FloatModel::from_tensors(spec, &init_tensors(spec, 1)).unwrap();
+    #[test]
+    fn cost_volume_is_the_population_variance_of_reference_and_warped_source() {
+        // Single-view ablation: the reference is its own source, so the cost at (c, j, h, b) is
+        // the variance of {F[h, b], warp(F)[j, h, b]} = ((F − warp(F)) / 2)², and in the spec's
+        // mean channels (the last ones) their mean clipped at 0, max((F + warp(F)) / 2, 0).
+        let spec = spec();
+        let model = FloatModel::from_tensors(&spec, &init_tensors(&spec, 1)).unwrap();
         let st = model.statics();
-        let grids = ModelGrids::derive(spec, &beam_centres_deg(spec).unwrap()).unwrap();
-        let table = grids.warp_table(spec, 1).unwrap();
+        let grids = ModelGrids::derive(&spec, &beam_centres_deg(&spec).unwrap()).unwrap();
+        let table = grids.warp_table(&spec, 1).unwrap();
         let (r, w) = st.input_size();
         let mut rng = SplitMix64::new(9);
         let img: Vec<u8> = (0..r * w).map(|_| (rng.next_u64() & 0xff) as u8).collect();
         let acts = model.activations(&[img]).unwrap();
         let get = |n: &str| acts.iter().find(|a| a.name == n).unwrap();
         let (f3, cost) = (get("f3"), get("cost"));
-        let fold = spec.features.fold() as usize;
-        let c = spec.features.channels as usize;
-        let n = spec.planes as usize;
-        let h = (spec.input.range_bins / spec.features.stride) as usize;
-        let wf = (spec.input.beam_columns / spec.features.azimuth_stride()) as usize;
-        let wc = wf / fold;
+        let [c, n, h, wf] = [8, 16, 64, 16];
         assert_eq!(f3.shape, vec![2, c, h, wf]);
-        assert_eq!(cost.shape, vec![1, c * fold, n, h, wc]);
+        assert_eq!(cost.shape, vec![1, c, n, h, wf]);
         let means = spec.features.mean_channels as usize;
-        let diffs = spec.features.difference_channels as usize;
         let mut nonzero = 0;
         for ci in 0..c {
             for j in 0..n {
@@ -1078,13 +1028,10 @@ mod tests {
                         };
                         let want = if ci + means >= c {
                             ((at(b) + warped) / 2.0).max(0.0)
-                        } else if ci + means + diffs >= c {
-                            (at(b) - warped).max(0.0)
                         } else {
                             ((at(b) - warped) / 2.0).powi(2)
                         };
-                        let channel = ci * fold + b % fold;
-                        let got = cost.data[((channel * n + j) * h + hi) * wc + b / fold];
+                        let got = cost.data[((ci * n + j) * h + hi) * wf + b];
                         assert!((got - want).abs() <= 1e-5 * (1.0 + want), "{got} vs {want}");
                         nonzero += usize::from(got > 0.0);
                     }
@@ -1092,41 +1039,5 @@ mod tests {
             }
         }
         assert!(nonzero > 0);
-    }
-
-    #[test]
-    fn cost_volume_is_the_population_variance_of_reference_and_warped_source() {
-        check_cost_volume(&spec());
-    }
-
-    #[test]
-    fn difference_channels_hold_the_clipped_reference_minus_source() {
-        for candidate in [
-            &include_bytes!("../../../../weights/candidates/difference-2.json")[..],
-            &include_bytes!("../../../../weights/candidates/difference-4.json")[..],
-        ] {
-            let spec = parse_spec(candidate).unwrap();
-            assert!(spec.features.difference_channels > 0);
-            check_cost_volume(&spec);
-        }
-        let mut bad = spec();
-        bad.features.difference_channels = 5;
-        assert!(Statics::new(&bad).is_err());
-    }
-
-    #[test]
-    fn a_finer_azimuth_stride_folds_its_sub_columns_into_cost_channels() {
-        for candidate in [
-            &include_bytes!("../../../../weights/candidates/fine-azimuth-1.json")[..],
-            &include_bytes!("../../../../weights/candidates/fine-azimuth-2.json")[..],
-        ] {
-            let spec = parse_spec(candidate).unwrap();
-            assert!(spec.features.fold() > 1);
-            check_cost_volume(&spec);
-        }
-        // A stride that the azimuth stride does not divide is refused.
-        let mut bad = spec();
-        bad.features.azimuth_stride = 3;
-        assert!(Statics::new(&bad).is_err());
     }
 }
