@@ -464,3 +464,38 @@ fn elevation_map_puts_floor_returns_on_the_floor() {
     // The floor fills the lower part of the aperture across the window.
     assert!(checked > 256 * 64 / 4, "only {checked} pixels with returns");
 }
+
+#[test]
+fn speckle_looks_shrink_the_speckle_and_one_look_is_the_old_draw() {
+    // The same terrain view rendered without speckle, with one look and with eight: on pixels
+    // well above the noise floor the log-compressed speckle's spread (|L looks − no speckle|)
+    // shrinks with the looks (about 5.6 dB for one look, 1.6 dB for eight).
+    let scene = generate(SceneKind::Terrain, Split::Test, 3, 0, 2);
+    let render = |params: SonarSimParams| simulate_scene(&scene, &params).unwrap().polar_views;
+    let clean = render(SonarSimParams {
+        speckle: false,
+        ..SonarSimParams::default()
+    });
+    let spread = |looks: u32| {
+        let views = render(SonarSimParams {
+            speckle_looks: looks,
+            ..SonarSimParams::default()
+        });
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (v, c) in views[0].iter().zip(&clean[0]) {
+            if *c > 120 {
+                sum += (*v as f64 - *c as f64).abs();
+                n += 1;
+            }
+        }
+        assert!(n > 100, "the view has returns ({n} pixels)");
+        sum / n as f64
+    };
+    let (one, eight) = (spread(1), spread(8));
+    assert!(eight < 0.5 * one, "8 looks {eight:.2} vs 1 look {one:.2}");
+    // One look is the default and is not written to sim_params.json.
+    let default = serde_json::to_string(&SonarSimParams::default()).unwrap();
+    assert!(!default.contains("speckle_looks"));
+    let four: SonarSimParams = serde_json::from_str(r#"{"speckle_looks": 4}"#).unwrap();
+    assert_eq!(four.speckle_looks, 4);
+}
