@@ -255,6 +255,7 @@ pub fn render_view(
 
     // Crosstalk, speckle, noise and log compression, beam by beam.
     let (c1, c2) = (params.crosstalk, params.crosstalk2);
+    let looks = params.speckle_looks.max(1);
     let columns: Vec<Vec<u8>> = (0..beams)
         .into_par_iter()
         .map(|b| {
@@ -271,7 +272,6 @@ pub fn render_view(
                     v += c * get(bi + off).map_or(0.0, |p| p[s]);
                 }
                 let (e1, e2): (f64, f64) = if params.speckle {
-                    let looks = params.speckle_looks.max(1);
                     let (mut e1, mut e2) = (0.0, 0.0);
                     for _ in 0..looks {
                         e1 += rng.sample::<f64, _>(Exp1);
