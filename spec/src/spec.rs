@@ -2,7 +2,10 @@
 //!
 //! `build.rs` parses the spec with these very types to generate the library's size constants
 //! and warp tables; the host tools parse it at run time with them too. The types use
-//! `heapless` containers so that they are usable without an allocator.
+//! `heapless` containers so that they are usable without an allocator. Every struct refuses
+//! fields it does not know: a spec written for an option this build lacks (a study option that
+//! was reverted, a newer spec) is an error that names the field, never silently another
+//! network.
 
 use heapless::{String, Vec};
 use serde::{Deserialize, Serialize};
@@ -12,6 +15,7 @@ pub const MAX_LAYERS: usize = 12;
 
 /// The whole model spec.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ModelSpec {
     /// Configuration name, e.g. "EPSSN-S".
     pub name: String<32>,
@@ -46,6 +50,7 @@ pub struct ModelSpec {
 
 /// The sonar.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SonarSpec {
     /// System name as the ARIS reader reports it, e.g. "ARIS 3000".
     pub system: String<16>,
@@ -59,6 +64,7 @@ pub struct SonarSpec {
 
 /// The range window.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RangeWindow {
     /// Start, metres.
     pub r_min_m: f64,
@@ -68,6 +74,7 @@ pub struct RangeWindow {
 
 /// Network input per view.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct InputSpec {
     /// Range bins R.
     pub range_bins: u16,
@@ -77,6 +84,7 @@ pub struct InputSpec {
 
 /// The roll baseline between views.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BaselineSpec {
     /// Roll of view k relative to the reference is `k × roll_step_deg`.
     pub roll_step_deg: f64,
@@ -97,6 +105,7 @@ pub struct BaselineSpec {
 
 /// Feature maps.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FeatureSpec {
     /// Channels C.
     pub channels: u16,
@@ -116,6 +125,7 @@ fn is_zero(v: &u16) -> bool {
 
 /// The front depth map.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct OutputSpec {
     /// Elevation rows E.
     pub elevation_rows: u16,
@@ -135,6 +145,7 @@ pub struct OutputSpec {
 
 /// Warp table precision.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct WarpSpec {
     /// Bits of the bilinear fraction.
     pub fraction_bits: u32,
@@ -154,6 +165,7 @@ pub enum LayerKind {
 
 /// One layer.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LayerSpec {
     /// Name, unique in the spec.
     pub name: String<8>,
@@ -185,6 +197,7 @@ pub struct LayerSpec {
 
 /// Training recipe.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrainingSpec {
     /// Human-readable loss.
     pub loss: String<96>,
