@@ -46,5 +46,6 @@ pub mod kernels;
 pub mod link;
 pub mod model;
 pub mod pairing;
+pub mod ping_average;
 pub mod requant;
 pub mod server;
