@@ -65,6 +65,13 @@ pub struct SonarSimParams {
     /// the simulator drew before the field existed, so older datasets stay byte-identical.
     #[serde(skip_serializing_if = "is_one")]
     pub speckle_looks: u32,
+    /// With `speckle_looks` L > 1, each look is a ping of its own, compressed to counts with
+    /// its own speckle and noise draw, and the L pings are averaged by the library's
+    /// [`epssn::ping_average`] at `dynamic_range_db`: what a host that averages recorded pings
+    /// computes, instead of the intensities averaged before compression. The draws are the same
+    /// either way. Default false.
+    #[serde(skip_serializing_if = "is_false")]
+    pub ping_frames: bool,
     /// Mean intensity of the background noise, linear (a beam whose every ray met a
     /// reflectivity-1 surface head-on at the reference range in one sample reads 1). Default 1e-6.
     pub noise_floor: f64,
@@ -92,6 +99,7 @@ impl Default for SonarSimParams {
             crosstalk2: 0.02,
             speckle: true,
             speckle_looks: 1,
+            ping_frames: false,
             noise_floor: 1e-6,
             gain_db: 70.0,
             dynamic_range_db: 70.0,
@@ -101,6 +109,10 @@ impl Default for SonarSimParams {
 
 fn is_one(v: &u32) -> bool {
     *v == 1
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
 }
 
 impl SonarSimParams {
@@ -256,6 +268,17 @@ pub fn render_view(
     // Crosstalk, speckle, noise and log compression, beam by beam.
     let (c1, c2) = (params.crosstalk, params.crosstalk2);
     let looks = params.speckle_looks.max(1);
+    let compress = |total: f64| -> u8 {
+        let db = 10.0 * total.max(1e-30).log10() + params.gain_db;
+        (255.0 * db / params.dynamic_range_db)
+            .round()
+            .clamp(0.0, 255.0) as u8
+    };
+    // Pings averaged as the host would average recorded frames (`ping_frames`).
+    // (`simulate` refuses a dynamic range the table cannot take before rendering.)
+    let ping_table = (params.ping_frames && params.speckle && looks > 1)
+        .then(|| epssn::ping_average::IntensityTable::new(params.dynamic_range_db as f32).ok())
+        .flatten();
     let columns: Vec<Vec<u8>> = (0..beams)
         .into_par_iter()
         .map(|b| {
@@ -271,6 +294,16 @@ pub fn render_view(
                     v += c * get(bi - off).map_or(0.0, |p| p[s]);
                     v += c * get(bi + off).map_or(0.0, |p| p[s]);
                 }
+                if let Some(table) = &ping_table {
+                    let mut sum = 0f32;
+                    for _ in 0..looks {
+                        let e1 = rng.sample::<f64, _>(Exp1);
+                        let e2 = rng.sample::<f64, _>(Exp1);
+                        sum += table.intensity(compress(v * e1 + params.noise_floor * e2));
+                    }
+                    *o = table.count(sum / looks as f32);
+                    continue;
+                }
                 let (e1, e2): (f64, f64) = if params.speckle {
                     let (mut e1, mut e2) = (0.0, 0.0);
                     for _ in 0..looks {
@@ -281,11 +314,7 @@ pub fn render_view(
                 } else {
                     (1.0, 1.0)
                 };
-                let total = v * e1 + params.noise_floor * e2;
-                let db = 10.0 * total.max(1e-30).log10() + params.gain_db;
-                *o = (255.0 * db / params.dynamic_range_db)
-                    .round()
-                    .clamp(0.0, 255.0) as u8;
+                *o = compress(v * e1 + params.noise_floor * e2);
             }
             out
         })

@@ -245,6 +245,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         params.samples_per_beam > 0 && params.sample_period_us > 0,
         "sim params: samples_per_beam and sample_period_us must be positive"
     );
+    ensure!(
+        params.dynamic_range_db.is_finite()
+            && params.dynamic_range_db > 0.0
+            && params.dynamic_range_db <= 200.0,
+        "sim params: dynamic_range_db must be within (0, 200]"
+    );
     let split_dir = args.out.join(args.split.name());
     std::fs::create_dir_all(&split_dir)
         .with_context(|| format!("creating {}", split_dir.display()))?;

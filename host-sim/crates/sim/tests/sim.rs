@@ -499,3 +499,58 @@ fn speckle_looks_shrink_the_speckle_and_one_look_is_the_old_draw() {
     let four: SonarSimParams = serde_json::from_str(r#"{"speckle_looks": 4}"#).unwrap();
     assert_eq!(four.speckle_looks, 4);
 }
+
+#[test]
+fn pings_averaged_as_frames_shrink_the_speckle_like_looks_in_intensity() {
+    // `ping_frames`: each look compressed on its own and averaged by `epssn::ping_average`, as
+    // a host averages recorded pings. Same draws as the intensity looks, so the two renders
+    // differ only by the per-ping quantisation: close on average, not byte-identical.
+    let scene = generate(SceneKind::Terrain, Split::Test, 3, 0, 2);
+    let render = |params: SonarSimParams| simulate_scene(&scene, &params).unwrap().polar_views;
+    let base = SonarSimParams::default();
+    let clean = render(SonarSimParams {
+        speckle: false,
+        ..base.clone()
+    });
+    let one = render(base.clone());
+    let looks = |ping_frames| {
+        render(SonarSimParams {
+            speckle_looks: 4,
+            ping_frames,
+            ..base.clone()
+        })
+    };
+    let (intensity, frames) = (looks(false), looks(true));
+    let spread = |views: &[Vec<u8>]| {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (v, c) in views[0].iter().zip(&clean[0]) {
+            if *c > 120 {
+                sum += (*v as f64 - *c as f64).abs();
+                n += 1;
+            }
+        }
+        assert!(n > 100, "the view has returns ({n} pixels)");
+        sum / n as f64
+    };
+    let (s1, si, sf) = (spread(&one), spread(&intensity), spread(&frames));
+    assert!(sf < 0.7 * s1, "4 pings as frames {sf:.2} vs 1 ping {s1:.2}");
+    assert!(
+        (sf - si).abs() < 0.25 * si,
+        "frames {sf:.2} vs intensity looks {si:.2}"
+    );
+    assert_ne!(frames, intensity);
+    let mean_gap = frames[0]
+        .iter()
+        .zip(&intensity[0])
+        .map(|(a, b)| (*a as f64 - *b as f64).abs())
+        .sum::<f64>()
+        / frames[0].len() as f64;
+    assert!(
+        mean_gap < 1.5,
+        "mean |frames − intensity| {mean_gap:.2} counts"
+    );
+    // Off by default and not written then.
+    assert!(!serde_json::to_string(&base)
+        .unwrap()
+        .contains("ping_frames"));
+}
