@@ -93,6 +93,18 @@ pub fn trained_views(dir: &Path) -> Result<usize> {
     }
 }
 
+/// Pings per view a model was trained on: the speckle looks of its training data
+/// (`data.train.speckle_looks` in its `manifest.json`, docs/SIMULATOR.md). `None` for models
+/// whose manifest predates the record or whose data mix several counts.
+pub fn trained_pings_per_view(dir: &Path) -> Option<u32> {
+    let text = std::fs::read_to_string(dir.join("manifest.json")).ok()?;
+    let j: serde_json::Value = serde_json::from_str(&text).ok()?;
+    match j["data"]["train"]["speckle_looks"].as_array()?.as_slice() {
+        [one] => one.as_u64().and_then(|v| u32::try_from(v).ok()),
+        _ => None,
+    }
+}
+
 /// [`trained_views`] for the int8 model, which runs 2..=MAX_VIEWS: calibration sees the
 /// variance statistics the model will run on, and the blob records the count
 /// ([`epssn::model::VIEWS_TENSOR`]).
@@ -115,6 +127,28 @@ mod tests {
     /// A scratch folder of this test process.
     fn scratch(name: &str) -> PathBuf {
         std::env::temp_dir().join(format!("epssn-weights-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn pings_per_view_come_from_the_training_data_record() {
+        let dir = scratch("pings");
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |j: serde_json::Value| {
+            std::fs::write(dir.join("manifest.json"), j.to_string()).unwrap();
+        };
+        write(serde_json::json!({ "data": { "train": { "speckle_looks": [4] } } }));
+        assert_eq!(trained_pings_per_view(&dir), Some(4));
+        write(serde_json::json!({ "data": { "train": { "speckle_looks": [1, 4] } } }));
+        assert_eq!(trained_pings_per_view(&dir), None, "a mix has no one count");
+        write(serde_json::json!({ "data": { "train": { "views": [2] } } }));
+        assert_eq!(trained_pings_per_view(&dir), None, "older manifests");
+        std::fs::remove_dir_all(&dir).unwrap();
+        // The shipped models record theirs.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
+        assert_eq!(
+            trained_pings_per_view(&root.join("weights/general")),
+            Some(1)
+        );
     }
 
     /// A scratch folder whose manifest says `views` (or has none).

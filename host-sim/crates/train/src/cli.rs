@@ -549,12 +549,14 @@ fn process_cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-/// What a simulated split holds, from its samples' `scene.json`: scene kinds, dataset seeds,
-/// sample count and views per sample (the record a trained model keeps of its data).
+/// What a simulated split holds, from its samples' `scene.json` and their split's
+/// `sim_params.json`: scene kinds, dataset seeds, sample count, views per sample and speckle
+/// looks per view (the record a trained model keeps of its data).
 pub fn data_summary(dir: &Path) -> serde_json::Value {
     let mut kinds = std::collections::BTreeSet::new();
     let mut seeds = std::collections::BTreeSet::new();
     let mut views = std::collections::BTreeSet::new();
+    let mut looks = std::collections::BTreeSet::new();
     let mut samples = 0usize;
     for d in std::fs::read_dir(dir).into_iter().flatten().flatten() {
         let Ok(text) = std::fs::read_to_string(d.path().join("scene.json")) else {
@@ -567,6 +569,7 @@ pub fn data_summary(dir: &Path) -> serde_json::Value {
         kinds.insert(j["kind"].as_str().unwrap_or("?").to_string());
         seeds.insert(j["seed"].as_u64().unwrap_or(u64::MAX));
         views.insert(j["view_rolls_deg"].as_array().map_or(0, |v| v.len()));
+        looks.extend(speckle_looks_of_sample(&d.path()));
     }
     serde_json::json!({
         "dir": dir.display().to_string(),
@@ -574,7 +577,19 @@ pub fn data_summary(dir: &Path) -> serde_json::Value {
         "seeds": seeds,
         "samples": samples,
         "views": views,
+        "speckle_looks": looks,
     })
+}
+
+/// Speckle looks averaged per view in a simulated sample (`simulate --params`
+/// `speckle_looks`, docs/SIMULATOR.md), read from the `sim_params.json` of the split the sample
+/// lives in (through the general mix's links); absent from the file means the default, 1.
+/// `None` when there is no such file (not simulated data).
+pub fn speckle_looks_of_sample(sample: &Path) -> Option<u64> {
+    let split = std::fs::canonicalize(sample).ok()?.parent()?.to_path_buf();
+    let text = std::fs::read_to_string(split.join("sim_params.json")).ok()?;
+    let j: serde_json::Value = serde_json::from_str(&text).ok()?;
+    Some(j.get("speckle_looks").and_then(|v| v.as_u64()).unwrap_or(1))
 }
 
 /// Mean and standard deviation as numbers (NaN for no values: JSON null, a table's NaN).
@@ -601,6 +616,25 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
     let dir = split_dir(&args.data, "test").unwrap_or_else(|| args.data.clone());
     let set = load_dir(&dir, views, st.input_size(), st.output_size(), args.limit)?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
+    // A model trained on averaged pings reads single pings badly and the reverse (measured,
+    // docs/ACCURACY.md): say so beside the figures rather than score silently.
+    let data_looks: Vec<u64> = data_summary(&dir)["speckle_looks"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|v| v.as_u64()).collect())
+        .unwrap_or_default();
+    let model_looks = epssn_reference::weights::trained_pings_per_view(&weights);
+    let mut warnings = Vec::new();
+    if let (Some(m), [d]) = (model_looks, data_looks.as_slice()) {
+        if u64::from(m) != *d {
+            warnings.push(format!(
+                "the model was trained on {m} speckle look(s) per view and these data have {d}: \
+                 its figures here are not its accuracy on the data it was made for"
+            ));
+        }
+    }
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
     let (mut float_m, mut int8_m, mut q_diff, mut q_diff_mask) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let (mut float_b, mut int8_b) = (
@@ -696,6 +730,8 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
             "data": dir.display().to_string(),
             "views": views,
             "samples": set.len(),
+            "speckle_looks": { "data": data_looks, "model": model_looks },
+            "warnings": warnings,
             "metric": "mae: 1000/(E*A) * sum over all E*A pixels of |pred - clamp(label, r_min, r_max)| (the paper's formula, mm); mae_masked: the same mean over the ground-truth mask; cd: 500 * symmetric chamfer (m^2) over the mask's points",
             "float": float,
             "int8": int8,
@@ -748,6 +784,46 @@ pub fn eval(args: &EvalArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn data_summary_records_the_speckle_looks_of_each_split() {
+        let root = tempfile::tempdir().unwrap();
+        let sample = |split: &str, i: usize, params: Option<&str>| {
+            let d = root.path().join(split).join(format!("{i:06}"));
+            std::fs::create_dir_all(&d).unwrap();
+            std::fs::write(
+                d.join("scene.json"),
+                r#"{"kind":"terrain","seed":1,"view_rolls_deg":[0.0,7.0]}"#,
+            )
+            .unwrap();
+            if let Some(p) = params {
+                std::fs::write(root.path().join(split).join("sim_params.json"), p).unwrap();
+            }
+            d
+        };
+        let four = sample("four", 0, Some(r#"{"speckle":true,"speckle_looks":4}"#));
+        let one = sample("one", 0, Some(r#"{"speckle":true}"#));
+        let recorded = sample("recorded", 0, None);
+        assert_eq!(speckle_looks_of_sample(&four), Some(4));
+        assert_eq!(
+            speckle_looks_of_sample(&one),
+            Some(1),
+            "absent means the default"
+        );
+        assert_eq!(speckle_looks_of_sample(&recorded), None);
+        // A mix of links to both, as scripts/train-general.sh builds, records both.
+        let mix = root.path().join("mix");
+        std::fs::create_dir_all(&mix).unwrap();
+        std::os::unix::fs::symlink(&four, mix.join("000000")).unwrap();
+        std::os::unix::fs::symlink(&one, mix.join("000001")).unwrap();
+        let s = data_summary(&mix);
+        assert_eq!(s["speckle_looks"], serde_json::json!([1, 4]));
+        assert_eq!(s["samples"], 2);
+        assert_eq!(
+            data_summary(&root.path().join("recorded"))["speckle_looks"],
+            serde_json::json!([])
+        );
+    }
 
     #[test]
     fn loss_curves_read_back_and_redraw() {
