@@ -14,6 +14,7 @@ use epssn::attitude::Attitude;
 use epssn::config;
 use epssn::model::{Model, Workspace};
 use epssn::pairing::{check_pair, CachedFrame};
+use epssn::ping_average;
 use fixed::types::U16F16;
 use serde::Serialize;
 
@@ -46,6 +47,16 @@ pub struct RunArgs {
     /// without rotator roll. The roll between them is assumed to be the baseline.
     #[arg(long = "pair", value_parser = parse_pair)]
     pub pairs: Vec<(usize, usize)>,
+    /// Pings averaged per view (`epssn::ping_average`): each run of this many consecutive
+    /// frames at one roll (within the pair tolerance) becomes one frame, named by its first;
+    /// frames left over are skipped with a warning. Default: the pings per view the weights
+    /// were trained on (their manifest's `speckle_looks`), else 1.
+    #[arg(long)]
+    pub pings_per_view: Option<u32>,
+    /// Dynamic range of the recording's 0–255 counts, dB, for averaging pings in intensity
+    /// (80 for ARIS files, docs/ARIS.md; 70 for the simulator's default).
+    #[arg(long, default_value_t = 80.0)]
+    pub ping_dynamic_range_db: f32,
     /// Output folder for PNGs, PLYs and `summary.json`.
     #[arg(long, default_value = "out/run")]
     pub out: PathBuf,
@@ -71,6 +82,8 @@ fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
 pub struct PairReport {
     /// Frame indices, reference first.
     pub frames: Vec<usize>,
+    /// The frames averaged into each view (`--pings-per-view`), reference first.
+    pub pings: Vec<Vec<usize>>,
     /// Rolls of those frames, degrees (NaN → null).
     pub rolls_deg: Vec<Option<f64>>,
     /// Library equals the integer reference on every layer and the depth map.
@@ -108,6 +121,8 @@ pub struct Summary {
     pub weights: String,
     /// Depth maps computed.
     pub pairs: usize,
+    /// Pings averaged per view.
+    pub pings_per_view: u32,
     /// Float model accuracy.
     pub float: Accuracy,
     /// Int8 library accuracy.
@@ -220,6 +235,60 @@ pub fn pair_by_roll(rolls: &[Option<f64>], views: usize) -> Vec<Vec<usize>> {
     out
 }
 
+/// Bursts of `pings` consecutive frames at one roll (each within the pair tolerance of the
+/// first's), keyed by their first frame; greedy from the start, a frame that cannot start a
+/// full burst is skipped. With one ping every frame with a roll is its own burst.
+pub fn ping_bursts(rolls: &[Option<f64>], pings: usize) -> BTreeMap<usize, Vec<usize>> {
+    let mut out = BTreeMap::new();
+    let mut i = 0;
+    while i < rolls.len() {
+        let Some(first) = rolls[i] else {
+            i += 1;
+            continue;
+        };
+        let full = i + pings <= rolls.len()
+            && rolls[i..i + pings]
+                .iter()
+                .all(|r| r.is_some_and(|r| (r - first).abs() <= config::PAIR_TOLERANCE_DEG));
+        if full {
+            out.insert(i, (i..i + pings).collect());
+            i += pings;
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+/// The frames `pings` averaged in intensity into one frame with the first's header.
+fn average_pings(
+    reader: &ArisReader,
+    pings: &[usize],
+    table: &ping_average::IntensityTable,
+) -> Result<epssn_aris::aris::Frame> {
+    let mut first = reader.frame(pings[0])?;
+    if pings.len() == 1 {
+        return Ok(first);
+    }
+    let mut sum = vec![0f32; first.data.len()];
+    let mut avg = ping_average::PingAverager::new(table, &mut sum);
+    avg.add(&first.data)
+        .map_err(|e| anyhow::anyhow!("frame {}: {e:?}", pings[0]))?;
+    for &p in &pings[1..] {
+        let f = reader.frame(p)?;
+        ensure!(
+            (f.beams, f.samples_per_beam) == (first.beams, first.samples_per_beam),
+            "frames {} and {p} differ in geometry: their pings cannot be averaged",
+            pings[0]
+        );
+        avg.add(&f.data)
+            .map_err(|e| anyhow::anyhow!("frame {p}: {e:?}"))?;
+    }
+    avg.finish(&mut first.data)
+        .map_err(|e| anyhow::anyhow!("averaging frames {pings:?}: {e:?}"))?;
+    Ok(first)
+}
+
 fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
     let d = dir.join(format!("depth_{frame:04}.npy"));
     if !d.exists() {
@@ -294,12 +363,58 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             }
         );
     }
-    let rolls: Vec<Option<f64>> = (0..reader.frame_count())
+    let mut rolls: Vec<Option<f64>> = (0..reader.frame_count())
         .map(|i| frame_roll(&reader, i))
         .collect();
-    let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+    let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
         .map(|i| frame_attitude(&reader, i))
         .collect();
+    let pings_per_view = args
+        .pings_per_view
+        .or_else(|| weights::trained_pings_per_view(&weights_dir))
+        .unwrap_or(1);
+    ensure!(
+        (1..=u32::from(ping_average::MAX_PINGS)).contains(&pings_per_view),
+        "--pings-per-view must be 1..={}",
+        ping_average::MAX_PINGS
+    );
+    if let Some(m) = weights::trained_pings_per_view(&weights_dir) {
+        if m != pings_per_view {
+            warnings.push(format!(
+                "the weights were trained on {m} ping(s) per view and this run averages \
+                 {pings_per_view}: expect them to read worse than their accuracy"
+            ));
+        }
+    }
+    // Each burst of pings is one view, named by its first frame: the other frames lose their
+    // roll and attitude so pairing sees only the bursts.
+    let bursts = ping_bursts(&rolls, pings_per_view as usize);
+    if pings_per_view > 1 {
+        ensure!(
+            args.pairs.is_empty(),
+            "--pair pairs single frames; with --pings-per-view {pings_per_view} pairing is by roll"
+        );
+        let in_bursts: usize = bursts.values().map(Vec::len).sum();
+        let skipped = reader.frame_count() - in_bursts;
+        if skipped > 0 {
+            warnings.push(format!(
+                "{skipped} frame(s) not in a run of {pings_per_view} pings at one roll were skipped"
+            ));
+        }
+        ensure!(
+            !bursts.is_empty(),
+            "{} holds no run of {pings_per_view} consecutive frames at one roll (±{} °): \
+             nothing to average (give --pings-per-view 1 for single pings)",
+            recording.display(),
+            config::PAIR_TOLERANCE_DEG
+        );
+        for i in 0..rolls.len() {
+            if !bursts.contains_key(&i) {
+                rolls[i] = None;
+                attitudes[i] = None;
+            }
+        }
+    }
     let mut candidates = Vec::new();
     let groups: Vec<Vec<usize>> = if args.pairs.is_empty() {
         candidates = pair_by_roll(&rolls, views)
@@ -376,9 +491,19 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     // and depth in one call and hands the features back for the bit-exactness check.
     let mut ws = Box::new(Workspace::new());
     let mut images: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
+    let table = ping_average::IntensityTable::new(args.ping_dynamic_range_db).map_err(|_| {
+        anyhow::anyhow!(
+            "--ping-dynamic-range-db {} is not within (0, 200]",
+            args.ping_dynamic_range_db
+        )
+    })?;
     for &f in groups.iter().flatten() {
         if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
-            e.insert(polar::frame_to_polar(&reader.frame(f)?)?);
+            let single = [f];
+            let pings = bursts.get(&f).map_or(&single[..], Vec::as_slice);
+            e.insert(polar::frame_to_polar(&average_pings(
+                &reader, pings, &table,
+            )?)?);
         }
     }
 
@@ -481,6 +606,10 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         )?;
         details.push(PairReport {
             frames: group.clone(),
+            pings: group
+                .iter()
+                .map(|f| bursts.get(f).cloned().unwrap_or_else(|| vec![*f]))
+                .collect(),
             rolls_deg: group.iter().map(|&f| rolls[f]).collect(),
             bit_exact,
             int8_vs_float_mae,
@@ -492,6 +621,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         recording: recording.display().to_string(),
         weights: weights_dir.display().to_string(),
         pairs: details.len(),
+        pings_per_view,
         float: Accuracy::of(
             &details
                 .iter()
@@ -528,6 +658,9 @@ fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -
     writeln!(out, "recording: {}", s.recording)?;
     writeln!(out, "weights:   {} ({weights})", s.weights)?;
     writeln!(out, "depth maps: {}", s.pairs)?;
+    if s.pings_per_view > 1 {
+        writeln!(out, "pings averaged per view: {}", s.pings_per_view)?;
+    }
     for d in &s.details {
         writeln!(
             out,

@@ -222,3 +222,118 @@ fn a_jittered_recording_pairs_exactly_the_pairs_within_the_residual_tolerance() 
         .collect();
     assert_eq!(used, [0, 4, 8]);
 }
+
+#[test]
+fn ping_bursts_are_runs_of_frames_at_one_roll() {
+    use host_sim::run::ping_bursts;
+    let rolls = [
+        Some(0.0),
+        Some(0.1),
+        Some(0.0),
+        Some(7.0),
+        Some(7.2),
+        None,
+        Some(7.0),
+        Some(7.0),
+        Some(14.0),
+    ];
+    let b = |pings| ping_bursts(&rolls, pings).into_values().collect::<Vec<_>>();
+    assert_eq!(b(2), vec![vec![0, 1], vec![3, 4], vec![6, 7]]);
+    assert_eq!(b(3), vec![vec![0, 1, 2]]);
+    assert_eq!(b(1).len(), 8, "every frame with a roll");
+    assert!(ping_bursts(&rolls, 10).is_empty());
+}
+
+/// The demo with every frame recorded three times (three identical pings per view): averaging
+/// identical pings gives the frame back, so `--pings-per-view 3` computes the very depth maps of
+/// the single-ping run, named by each burst's first frame; single pings refuse to be averaged.
+#[test]
+fn averaged_identical_pings_give_the_single_ping_depth_maps() {
+    let demo = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo/recording.aris");
+    let bytes = std::fs::read(demo).unwrap();
+    let frames = 12;
+    let frame_len = (bytes.len() - 1024) / frames;
+    let mut tripled = bytes[..1024].to_vec();
+    tripled[4..8].copy_from_slice(&(3 * frames as u32).to_le_bytes()); // FrameCount
+    for i in 0..frames {
+        for _ in 0..3 {
+            tripled.extend_from_slice(&bytes[1024 + i * frame_len..1024 + (i + 1) * frame_len]);
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("tripled.aris");
+    std::fs::write(&rec, &tripled).unwrap();
+    let run = |recording: &std::path::Path, extra: &[&str], out: &str| {
+        host_sim()
+            .args(["run", "--json", "--recording"])
+            .arg(recording)
+            .args(extra)
+            .arg("--out")
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap()
+    };
+    let single = run(std::path::Path::new(demo), &[], "single");
+    assert!(
+        single.status.success(),
+        "{}",
+        String::from_utf8_lossy(&single.stderr)
+    );
+    let single: serde_json::Value = serde_json::from_slice(&single.stdout).unwrap();
+    let three = run(&rec, &["--pings-per-view", "3"], "three");
+    assert!(
+        three.status.success(),
+        "{}",
+        String::from_utf8_lossy(&three.stderr)
+    );
+    let three: serde_json::Value = serde_json::from_slice(&three.stdout).unwrap();
+    assert_eq!(three["pings_per_view"], 3);
+    assert_eq!(three["pairs"], single["pairs"]);
+    assert_eq!(three["bit_exact"], true);
+    for (s, t) in single["details"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(three["details"].as_array().unwrap())
+    {
+        let f: Vec<u64> = s["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
+        let g: Vec<u64> = t["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
+        assert_eq!(g, f.iter().map(|i| 3 * i).collect::<Vec<_>>());
+        assert_eq!(
+            t["pings"][0],
+            serde_json::json!([3 * f[0], 3 * f[0] + 1, 3 * f[0] + 2])
+        );
+        assert_eq!(t["int8_vs_float_mae"], s["int8_vs_float_mae"]);
+        let ply = |run: &str, frame: u64| {
+            std::fs::read(
+                dir.path()
+                    .join(run)
+                    .join(format!("frame{frame:04}_int8.ply")),
+            )
+            .unwrap()
+        };
+        assert_eq!(ply("three", g[0]), ply("single", f[0]));
+    }
+    // The single-ping demo holds no two consecutive frames at one roll.
+    let refused = run(
+        std::path::Path::new(demo),
+        &["--pings-per-view", "2"],
+        "refused",
+    );
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        err.contains("no run of 2 consecutive frames at one roll"),
+        "{err}"
+    );
+}
