@@ -15,6 +15,8 @@
 # VIEWS=3 trains a three-view model (rolls 0, +7, +14 degrees; give it a DATA_ROOT of its own,
 # the data are simulated with the third view): the manifest and the blob record the count, and
 # eval, run and the firmware's pairing follow it.
+# SIM_PARAMS=FILE simulates every split with `simulate --params FILE` (docs/SIMULATOR.md), e.g.
+# {"speckle_looks": 4} for four pings averaged per view; give it a DATA_ROOT of its own.
 # Each scene is simulated with seed 1 into DATA_ROOT/<scene>/{train,test} (as train-scene.sh
 # does) and a validation split with seed 2 into DATA_ROOT/<scene>-val/test (disjoint from both:
 # the simulator mixes the split tag into the seed). DATA_ROOT/general/{train,val} holds symbolic
@@ -27,6 +29,7 @@ train_n=$1 test_n=$2 epochs=$3 root=${4:-out/epssn-data} spec=${5:-weights/epssn
 weights=${WEIGHTS:-weights/general} passes=${SEARCH_PASSES:-3} calib_n=${CALIB_SAMPLES:-256}
 pixels=${SEARCH_PIXELS:-all}
 views=(${VIEWS:+--views "$VIEWS"})
+sim_params=(${SIM_PARAMS:+--params "$SIM_PARAMS"})
 val_n=${VAL_PER_SCENE:-100}
 hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
@@ -37,11 +40,11 @@ scenes=(sphere terrain artificial)
 have() { [ -d "$1/$(printf %06d $(($2 - 1)))" ]; }
 for scene in "${scenes[@]}"; do
   have "$root/$scene/train" "$train_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}"
+    "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}" "${sim_params[@]}"
   have "$root/$scene/test" "$test_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$test_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}"
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$test_n" --seed 1 --out "$root/$scene" --no-preview "${views[@]}" "${sim_params[@]}"
   have "$root/$scene-val/test" "$val_n" ||
-    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$val_n" --seed 2 --out "$root/$scene-val" --no-preview "${views[@]}"
+    "${hs[@]}" simulate --scene "$scene" --split test --pairs "$val_n" --seed 2 --out "$root/$scene-val" --no-preview "${views[@]}" "${sim_params[@]}"
 done
 mix=$root/general
 rm -rf "$mix" && mkdir -p "$mix/train" "$mix/val"
