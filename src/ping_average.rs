@@ -169,6 +169,44 @@ impl<'a> PingAverager<'a> {
 mod tests {
     use super::*;
 
+    /// CRC-32 of both tables' levels and of four pseudo-random pings averaged at each range.
+    /// `qemu-check` computes the same recipe on the emulated Cortex-M7 and expects the same
+    /// value: the host and the device average pings to the same bytes.
+    fn fingerprint() -> u32 {
+        let mut crc = crate::crc32::Crc32::new();
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for range in [70.0f32, 80.0] {
+            let t = IntensityTable::new(range).unwrap();
+            for v in 0..=255u8 {
+                crc.update(&t.intensity(v).to_bits().to_le_bytes());
+            }
+            let mut sum = [0f32; 1024];
+            let mut avg = PingAverager::new(&t, &mut sum);
+            let mut frame = [0u8; 1024];
+            for _ in 0..4 {
+                for x in frame.iter_mut() {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    *x = (state >> 56) as u8;
+                }
+                avg.add(&frame).unwrap();
+            }
+            let mut out = [0u8; 1024];
+            avg.finish(&mut out).unwrap();
+            crc.update(&out);
+        }
+        crc.finish()
+    }
+
+    /// The value `qemu-check` expects on the Cortex-M7 (qemu-check/src/main.rs).
+    const FINGERPRINT: u32 = 0x5cc9_f3cd;
+
+    #[test]
+    fn the_host_averages_to_the_bytes_the_device_does() {
+        assert_eq!(fingerprint(), FINGERPRINT, "{:#010x}", fingerprint());
+    }
+
     #[test]
     fn every_count_maps_to_itself_and_the_table_ascends() {
         for range in [70.0, 80.0, 3.0, 200.0] {
