@@ -3,7 +3,10 @@
 //! `weights/ACCURACY_GUARD.json`. Fails when the float model's MAE (the paper's formula: all
 //! pixels, labels clamped) regresses by more than 10 % on a scene, or when int8 drifts more than
 //! 5 % from float. The three-view model (`weights/general-3view/`) is guarded the same way on
-//! three-view data, against `weights/general-3view/ACCURACY_GUARD.json`.
+//! three-view data, against `weights/general-3view/ACCURACY_GUARD.json`, and the three-view
+//! model for four pings per view (`weights/general-3view-looks4/`) on three-view data whose
+//! four pings per view are averaged as a host averages recorded frames
+//! (`scripts/sim-params/looks-4-frames.json`).
 //!
 //! After a deliberate change of a guarded model, rewrite the committed figures with
 //! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the files.
@@ -41,7 +44,7 @@ fn host_sim(args: &[&str]) -> serde_json::Value {
 
 #[test]
 fn shipped_model_keeps_its_accuracy_on_every_scene() {
-    guard(None, 2, "weights/ACCURACY_GUARD.json");
+    guard(None, 2, "weights/ACCURACY_GUARD.json", None);
 }
 
 #[test]
@@ -50,12 +53,24 @@ fn three_view_model_keeps_its_accuracy_on_every_scene() {
         Some("weights/general-3view"),
         3,
         "weights/general-3view/ACCURACY_GUARD.json",
+        None,
     );
 }
 
-/// Simulates the held-out set with `views` views, evaluates `weights` (None: the shipped model;
-/// eval feeds the views the model was trained for) and checks or blesses `file`.
-fn guard(weights: Option<&str>, views: usize, file: &str) {
+#[test]
+fn four_ping_three_view_model_keeps_its_accuracy_on_every_scene() {
+    guard(
+        Some("weights/general-3view-looks4"),
+        3,
+        "weights/general-3view-looks4/ACCURACY_GUARD.json",
+        Some("scripts/sim-params/looks-4-frames.json"),
+    );
+}
+
+/// Simulates the held-out set with `views` views (and `simulate --params sim_params`, the
+/// pings a model expects), evaluates `weights` (None: the shipped model; eval feeds the views
+/// the model was trained for) and checks or blesses `file`.
+fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&str>) {
     let data = tempfile::tempdir().unwrap();
     let views_arg = views.to_string();
     let mut measured = serde_json::Map::new();
@@ -64,7 +79,7 @@ fn guard(weights: Option<&str>, views: usize, file: &str) {
         let out = out.to_str().unwrap();
         let pairs = PAIRS.to_string();
         let seed = SEED.to_string();
-        host_sim(&[
+        let mut sim = vec![
             "simulate",
             "--scene",
             scene,
@@ -79,7 +94,11 @@ fn guard(weights: Option<&str>, views: usize, file: &str) {
             "--no-preview",
             "--views",
             &views_arg,
-        ]);
+        ];
+        if let Some(p) = sim_params {
+            sim.extend(["--params", p]);
+        }
+        host_sim(&sim);
         // The float maps from the f64 reference network: burn's flex backend gives wrong float
         // maps for batches of 8 in the dev profile this test runs in (release is right).
         let mut args = vec![
@@ -96,6 +115,8 @@ fn guard(weights: Option<&str>, views: usize, file: &str) {
         }
         let v = host_sim(&args);
         assert_eq!(v["views"].as_u64(), Some(views as u64), "{scene}: {v}");
+        // The data hold the pings the model was trained on.
+        assert_eq!(v["warnings"], serde_json::json!([]), "{scene}: {v}");
         let float = v["float"]["mae"].as_f64().unwrap();
         let int8 = v["int8"]["mae"].as_f64().unwrap();
         assert!(float.is_finite() && int8.is_finite(), "{scene}: {v}");
@@ -124,9 +145,10 @@ fn guard(weights: Option<&str>, views: usize, file: &str) {
     let doc = serde_json::json!({
         "what": format!(
             "{}, `host-sim eval --int8 --float-reference` on `simulate --split test --seed 77 \
-             --pairs 48 --views {views}` per scene; mae = the paper's formula (all pixels, labels \
-             clamped), mm",
-            weights.unwrap_or("shipped model")
+             --pairs 48 --views {views}{}` per scene; mae = the paper's formula (all pixels, \
+             labels clamped), mm",
+            weights.unwrap_or("shipped model"),
+            sim_params.map_or(String::new(), |p| format!(" --params {p}"))
         ),
         "pairs": PAIRS,
         "seed": SEED,
