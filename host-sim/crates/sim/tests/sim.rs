@@ -465,6 +465,20 @@ fn elevation_map_puts_floor_returns_on_the_floor() {
     assert!(checked > 256 * 64 / 4, "only {checked} pixels with returns");
 }
 
+/// Mean |view − speckle-free view| in counts over pixels well above the noise floor (speckle-free
+/// count above 120): the log-compressed speckle's spread.
+fn speckle_spread(view: &[u8], clean: &[u8]) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (v, c) in view.iter().zip(clean) {
+        if *c > 120 {
+            sum += (*v as f64 - *c as f64).abs();
+            n += 1;
+        }
+    }
+    assert!(n > 100, "the view has returns ({n} pixels)");
+    sum / n as f64
+}
+
 #[test]
 fn speckle_looks_shrink_the_speckle_and_one_look_is_the_old_draw() {
     // The same terrain view rendered without speckle, with one look and with eight: on pixels
@@ -481,15 +495,7 @@ fn speckle_looks_shrink_the_speckle_and_one_look_is_the_old_draw() {
             speckle_looks: looks,
             ..SonarSimParams::default()
         });
-        let (mut sum, mut n) = (0.0, 0usize);
-        for (v, c) in views[0].iter().zip(&clean[0]) {
-            if *c > 120 {
-                sum += (*v as f64 - *c as f64).abs();
-                n += 1;
-            }
-        }
-        assert!(n > 100, "the view has returns ({n} pixels)");
-        sum / n as f64
+        speckle_spread(&views[0], &clean[0])
     };
     let (one, eight) = (spread(1), spread(8));
     assert!(eight < 0.5 * one, "8 looks {eight:.2} vs 1 look {one:.2}");
@@ -521,17 +527,7 @@ fn pings_averaged_as_frames_shrink_the_speckle_like_looks_in_intensity() {
         })
     };
     let (intensity, frames) = (looks(false), looks(true));
-    let spread = |views: &[Vec<u8>]| {
-        let (mut sum, mut n) = (0.0, 0usize);
-        for (v, c) in views[0].iter().zip(&clean[0]) {
-            if *c > 120 {
-                sum += (*v as f64 - *c as f64).abs();
-                n += 1;
-            }
-        }
-        assert!(n > 100, "the view has returns ({n} pixels)");
-        sum / n as f64
-    };
+    let spread = |views: &[Vec<u8>]| speckle_spread(&views[0], &clean[0]);
     let (s1, si, sf) = (spread(&one), spread(&intensity), spread(&frames));
     assert!(sf < 0.7 * s1, "4 pings as frames {sf:.2} vs 1 ping {s1:.2}");
     assert!(
