@@ -369,16 +369,14 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
         .map(|i| frame_attitude(&reader, i))
         .collect();
-    let pings_per_view = args
-        .pings_per_view
-        .or_else(|| weights::trained_pings_per_view(&weights_dir))
-        .unwrap_or(1);
+    let trained_pings = weights::trained_pings_per_view(&weights_dir);
+    let pings_per_view = args.pings_per_view.or(trained_pings).unwrap_or(1);
     ensure!(
         (1..=u32::from(ping_average::MAX_PINGS)).contains(&pings_per_view),
         "--pings-per-view must be 1..={}",
         ping_average::MAX_PINGS
     );
-    if let Some(m) = weights::trained_pings_per_view(&weights_dir) {
+    if let Some(m) = trained_pings {
         if m != pings_per_view {
             warnings.push(format!(
                 "the weights were trained on {m} ping(s) per view and this run averages \
@@ -389,6 +387,8 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     // Each burst of pings is one view, named by its first frame: the other frames lose their
     // roll and attitude so pairing sees only the bursts.
     let bursts = ping_bursts(&rolls, pings_per_view as usize);
+    // The frames a view averages: its burst, or the frame alone (`--pair`, no roll).
+    let pings_of = |f: usize| bursts.get(&f).cloned().unwrap_or_else(|| vec![f]);
     if pings_per_view > 1 {
         ensure!(
             args.pairs.is_empty(),
@@ -499,10 +499,10 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     })?;
     for &f in groups.iter().flatten() {
         if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
-            let single = [f];
-            let pings = bursts.get(&f).map_or(&single[..], Vec::as_slice);
             e.insert(polar::frame_to_polar(&average_pings(
-                &reader, pings, &table,
+                &reader,
+                &pings_of(f),
+                &table,
             )?)?);
         }
     }
@@ -606,10 +606,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         )?;
         details.push(PairReport {
             frames: group.clone(),
-            pings: group
-                .iter()
-                .map(|f| bursts.get(f).cloned().unwrap_or_else(|| vec![*f]))
-                .collect(),
+            pings: group.iter().map(|&f| pings_of(f)).collect(),
             rolls_deg: group.iter().map(|&f| rolls[f]).collect(),
             bit_exact,
             int8_vs_float_mae,

@@ -30,6 +30,16 @@ fn demo_run(cmd: &mut Command) -> serde_json::Value {
     v
 }
 
+/// A depth map's frame indices from `run --json`'s `details`.
+fn frame_indices(detail: &serde_json::Value) -> Vec<u64> {
+    detail["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_u64().unwrap())
+        .collect()
+}
+
 #[test]
 fn demo_run_is_bit_exact_and_scores_both_models() {
     let out = tempfile::tempdir().unwrap();
@@ -76,12 +86,7 @@ fn a_three_view_blob_runs_on_view_triples() {
             .arg(out.path()),
     );
     for d in v["details"].as_array().unwrap() {
-        let f: Vec<u64> = d["frames"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.as_u64().unwrap())
-            .collect();
+        let f = frame_indices(d);
         assert_eq!(f, vec![f[0], f[0] + 1, f[0] + 2], "{d}");
         assert_eq!(f[0] % 3, 0, "{d}");
     }
@@ -296,18 +301,7 @@ fn averaged_identical_pings_give_the_single_ping_depth_maps() {
         .iter()
         .zip(three["details"].as_array().unwrap())
     {
-        let f: Vec<u64> = s["frames"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap())
-            .collect();
-        let g: Vec<u64> = t["frames"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap())
-            .collect();
+        let (f, g) = (frame_indices(s), frame_indices(t));
         assert_eq!(g, f.iter().map(|i| 3 * i).collect::<Vec<_>>());
         assert_eq!(
             t["pings"][0],

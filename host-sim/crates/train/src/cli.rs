@@ -556,7 +556,7 @@ pub fn data_summary(dir: &Path) -> serde_json::Value {
     let mut kinds = std::collections::BTreeSet::new();
     let mut seeds = std::collections::BTreeSet::new();
     let mut views = std::collections::BTreeSet::new();
-    let mut looks = std::collections::BTreeSet::new();
+    let mut splits = std::collections::BTreeSet::new();
     let mut samples = 0usize;
     for d in std::fs::read_dir(dir).into_iter().flatten().flatten() {
         let Ok(text) = std::fs::read_to_string(d.path().join("scene.json")) else {
@@ -569,8 +569,13 @@ pub fn data_summary(dir: &Path) -> serde_json::Value {
         kinds.insert(j["kind"].as_str().unwrap_or("?").to_string());
         seeds.insert(j["seed"].as_u64().unwrap_or(u64::MAX));
         views.insert(j["view_rolls_deg"].as_array().map_or(0, |v| v.len()));
-        looks.extend(speckle_looks_of_sample(&d.path()));
+        splits.extend(split_of_sample(&d.path()));
     }
+    // Each split's sim_params.json once, not once per sample linked from it.
+    let looks: std::collections::BTreeSet<u64> = splits
+        .iter()
+        .filter_map(|s| speckle_looks_of_split(s))
+        .collect();
     serde_json::json!({
         "dir": dir.display().to_string(),
         "scenes": kinds,
@@ -581,15 +586,23 @@ pub fn data_summary(dir: &Path) -> serde_json::Value {
     })
 }
 
-/// Speckle looks averaged per view in a simulated sample (`simulate --params`
-/// `speckle_looks`, docs/SIMULATOR.md), read from the `sim_params.json` of the split the sample
-/// lives in (through the general mix's links); absent from the file means the default, 1.
+/// The split folder a sample lives in, through the general mix's links.
+fn split_of_sample(sample: &Path) -> Option<PathBuf> {
+    Some(std::fs::canonicalize(sample).ok()?.parent()?.to_path_buf())
+}
+
+/// Speckle looks averaged per view in a simulated split (`simulate --params` `speckle_looks`,
+/// docs/SIMULATOR.md), from its `sim_params.json`; absent from the file means the default, 1.
 /// `None` when there is no such file (not simulated data).
-pub fn speckle_looks_of_sample(sample: &Path) -> Option<u64> {
-    let split = std::fs::canonicalize(sample).ok()?.parent()?.to_path_buf();
+fn speckle_looks_of_split(split: &Path) -> Option<u64> {
     let text = std::fs::read_to_string(split.join("sim_params.json")).ok()?;
     let j: serde_json::Value = serde_json::from_str(&text).ok()?;
     Some(j.get("speckle_looks").and_then(|v| v.as_u64()).unwrap_or(1))
+}
+
+/// Speckle looks of the split a sample lives in (its `sim_params.json`; `None` without one).
+pub fn speckle_looks_of_sample(sample: &Path) -> Option<u64> {
+    speckle_looks_of_split(&split_of_sample(sample)?)
 }
 
 /// Mean and standard deviation as numbers (NaN for no values: JSON null, a table's NaN).
