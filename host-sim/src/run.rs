@@ -727,7 +727,8 @@ pub struct BundleArgs {
 }
 
 /// `host-sim bundle`: concatenates simulated samples into one ARIS recording (each sample's
-/// views in roll order, as a rotating sonar would record them) with the ground truth of every
+/// views in roll order, as a rotating sonar would record them, each view's pings in a row when
+/// it was simulated with `ping_frames`) with the ground truth of every
 /// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`.
 pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
     let gt = args.out.join("gt");
@@ -740,11 +741,14 @@ pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
             let path = dir.join(format!("view{k}.aris"));
             let r =
                 ArisReader::open(&path).with_context(|| format!("opening {}", path.display()))?;
-            let f = r.frame(0)?;
-            let mut h = f.header.clone();
-            h.frame_index = frames.len() as u32;
-            h.frame_time_us = 1_700_000_000_000_000 + frames.len() as u64 * 100_000;
-            frames.push((h, f.data));
+            // Every frame: one, or the view's pings (simulated with `ping_frames`).
+            for i in 0..r.frame_count() {
+                let f = r.frame(i)?;
+                let mut h = f.header.clone();
+                h.frame_index = frames.len() as u32;
+                h.frame_time_us = 1_700_000_000_000_000 + frames.len() as u64 * 100_000;
+                frames.push((h, f.data));
+            }
         }
         let shape = [config::DEPTH_ROWS, config::DEPTH_COLUMNS];
         npy::write_f32(

@@ -331,3 +331,78 @@ fn averaged_identical_pings_give_the_single_ping_depth_maps() {
         "{err}"
     );
 }
+
+/// A simulated four-ping recording end to end: `simulate` with `ping_frames` records every ping,
+/// `bundle` keeps them in a row, and `run --pings-per-view 4` averages each burst back into
+/// the very inputs `eval` reads from the sample folder: the same int8 and float accuracy.
+#[test]
+fn a_four_ping_recording_runs_to_the_sample_folders_accuracy() {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("sim");
+    let ok = |cmd: &mut Command| {
+        let o = cmd.current_dir(root).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        o.stdout
+    };
+    ok(host_sim()
+        .args([
+            "simulate", "--scene", "terrain", "--pairs", "1", "--seed", "2026",
+        ])
+        .args([
+            "--split",
+            "test",
+            "--views",
+            "3",
+            "--no-preview",
+            "--params",
+        ])
+        .arg("scripts/sim-params/looks-4-frames.json")
+        .arg("--out")
+        .arg(&sim));
+    let rec = dir.path().join("rec");
+    ok(host_sim()
+        .arg("bundle")
+        .arg(sim.join("test/000000"))
+        .arg("--out")
+        .arg(&rec));
+    let weights = ["--weights", "weights/general-3view-looks4"];
+    let run: serde_json::Value = serde_json::from_slice(&ok(host_sim()
+        .arg("run")
+        .args(weights)
+        .arg("--recording")
+        .arg(rec.join("recording.aris"))
+        .arg("--gt")
+        .arg(rec.join("gt"))
+        // The simulator compresses 70 dB into the counts (ARIS recordings: 80, the default).
+        .args(["--ping-dynamic-range-db", "70", "--json", "--out"])
+        .arg(dir.path().join("out"))))
+    .unwrap();
+    assert_eq!(run["pings_per_view"], 4);
+    assert_eq!(run["pairs"], 1);
+    assert_eq!(run["bit_exact"], true);
+    assert_eq!(
+        run["details"][0]["pings"],
+        serde_json::json!([[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]])
+    );
+    let eval: serde_json::Value = serde_json::from_slice(&ok(host_sim()
+        .arg("eval")
+        .args(weights)
+        .arg("--data")
+        .arg(&sim)
+        .args(["--int8", "--float-reference", "--json"])))
+    .unwrap();
+    assert_eq!(eval["warnings"], serde_json::json!([]));
+    for model in ["float", "int8"] {
+        for metric in ["mae", "mae_masked", "cd"] {
+            let (r, e) = (
+                run[model][metric].as_f64().unwrap(),
+                eval[model][metric].as_f64().unwrap(),
+            );
+            assert!(
+                (r - e).abs() <= 1e-9 * e,
+                "{model} {metric}: run {r}, eval {e}"
+            );
+        }
+    }
+}

@@ -69,7 +69,9 @@ pub struct SonarSimParams {
     /// its own speckle and noise draw, and the L pings are averaged by the library's
     /// [`epssn::ping_average`] at `dynamic_range_db`: what a host that averages recorded pings
     /// computes, instead of the intensities averaged before compression. The draws are the same
-    /// either way. Default false.
+    /// either way. `simulate` then writes the L pings as the frames of each `view<k>.aris`, so
+    /// a bundled recording carries every ping (`host-sim run --pings-per-view L` averages them
+    /// back). Default false.
     #[serde(skip_serializing_if = "is_false")]
     pub ping_frames: bool,
     /// Mean intensity of the background noise, linear (a beam whose every ray met a
@@ -178,6 +180,9 @@ fn beam_half_width(c: &[f64], b: usize) -> f64 {
 pub struct RenderedView {
     /// `samples[sample × beams + beam]`, as stored in an ARIS frame.
     pub samples: Vec<u8>,
+    /// With `ping_frames`: the L pings that `samples` averages, each laid out like `samples`
+    /// (what a sonar would record, one frame per ping); empty otherwise.
+    pub pings: Vec<Vec<u8>>,
     /// Per beam and range sample: Σ w (noiseless linear contributions).
     pub weight: Vec<f64>,
     /// Per beam and range sample: Σ w · elevation (radians, in this view's frame).
@@ -279,7 +284,7 @@ pub fn render_view(
     let ping_table = (params.ping_frames && params.speckle && looks > 1)
         .then(|| epssn::ping_average::IntensityTable::new(params.dynamic_range_db as f32).ok())
         .flatten();
-    let columns: Vec<Vec<u8>> = (0..beams)
+    let columns: Vec<(Vec<u8>, Vec<Vec<u8>>)> = (0..beams)
         .into_par_iter()
         .map(|b| {
             let mut rng = ChaCha8Rng::seed_from_u64(mix64(view_seed ^ (((b as u64) << 1) | 1)));
@@ -288,6 +293,14 @@ pub fn render_view(
             };
             let bi = b as i64;
             let mut out = vec![0u8; ns];
+            let mut pings = vec![
+                vec![0u8; ns];
+                if ping_table.is_some() {
+                    looks as usize
+                } else {
+                    0
+                }
+            ];
             for (s, o) in out.iter_mut().enumerate() {
                 let mut v = (1.0 - 2.0 * c1 - 2.0 * c2) * profiles[b].intensity[s];
                 for (off, c) in [(1, c1), (2, c2)] {
@@ -296,10 +309,11 @@ pub fn render_view(
                 }
                 if let Some(table) = &ping_table {
                     let mut sum = 0f32;
-                    for _ in 0..looks {
+                    for ping in pings.iter_mut() {
                         let e1 = rng.sample::<f64, _>(Exp1);
                         let e2 = rng.sample::<f64, _>(Exp1);
-                        sum += table.intensity(compress(v * e1 + params.noise_floor * e2));
+                        ping[s] = compress(v * e1 + params.noise_floor * e2);
+                        sum += table.intensity(ping[s]);
                     }
                     *o = table.count(sum / looks as f32);
                     continue;
@@ -316,22 +330,27 @@ pub fn render_view(
                 };
                 *o = compress(v * e1 + params.noise_floor * e2);
             }
-            out
+            (out, pings)
         })
         .collect();
 
     let mut samples = vec![0u8; ns * beams];
     let mut weight = vec![0.0; ns * beams];
     let mut weighted_elevation = vec![0.0; ns * beams];
+    let mut pings = vec![vec![0u8; ns * beams]; columns.first().map_or(0, |c| c.1.len())];
     for b in 0..beams {
         for s in 0..ns {
-            samples[s * beams + b] = columns[b][s];
+            samples[s * beams + b] = columns[b].0[s];
+            for (ping, column) in pings.iter_mut().zip(&columns[b].1) {
+                ping[s * beams + b] = column[s];
+            }
             weight[s * beams + b] = profiles[b].weight[s];
             weighted_elevation[s * beams + b] = profiles[b].weighted_elevation[s];
         }
     }
     RenderedView {
         samples,
+        pings,
         weight,
         weighted_elevation,
     }

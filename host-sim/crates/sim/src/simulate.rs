@@ -1,4 +1,5 @@
-//! `host-sim simulate`: draws scenes, renders every view as a one-frame ARIS 3000 recording,
+//! `host-sim simulate`: draws scenes, renders every view as a one-frame ARIS 3000 recording
+//! (one frame per ping with `SonarSimParams::ping_frames`),
 //! computes the ground truth and writes the sample folders (format in docs/SIMULATOR.md):
 //!
 //! ```text
@@ -31,6 +32,8 @@ pub struct SampleData {
     pub scene: Scene,
     /// Per view, the ARIS frame (`samples[sample × 128 + beam]`).
     pub frames: Vec<Vec<u8>>,
+    /// Per view, the pings that frame averages (`SonarSimParams::ping_frames`), else empty.
+    pub pings: Vec<Vec<Vec<u8>>>,
     /// Per view, the model's polar input (R × B).
     pub polar_views: Vec<Vec<u8>>,
     /// Front depth map of the reference view (E × A metres).
@@ -50,6 +53,7 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
     );
     let world = World::new(scene);
     let mut frames = Vec::new();
+    let mut pings = Vec::new();
     let mut polar_views = Vec::new();
     let mut elevation = Vec::new();
     for k in 0..scene.view_rolls_deg.len() {
@@ -59,11 +63,13 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
         }
         polar_views.push(polar_image(&view.samples, params)?);
         frames.push(view.samples);
+        pings.push(view.pings);
     }
     let (depth, mask) = front_depth(scene, &world, 0);
     Ok(SampleData {
         scene: scene.clone(),
         frames,
+        pings,
         polar_views,
         depth: depth.iter().map(|d| *d as f32).collect(),
         mask: mask.iter().map(|m| if *m { 1.0 } else { 0.0 }).collect(),
@@ -71,17 +77,26 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
     })
 }
 
-/// Writes one frame as a one-frame ARIS 3000 recording with the view's roll in SonarRoll and
-/// RollAbsPosition and its pose error `[pitch, yaw]` as the platform's Pitch and Heading.
+/// Writes a view's frames (one, or its pings in order) as an ARIS 3000 recording with the
+/// view's roll in SonarRoll and RollAbsPosition and its pose error `[pitch, yaw]` as the
+/// platform's Pitch and Heading, the frames numbered from 0.
 pub fn write_aris(
     path: &Path,
-    frame: &[u8],
+    frames: &[&[u8]],
     roll_deg: f64,
     pose_error_deg: [f64; 2],
     params: &SonarSimParams,
 ) -> Result<()> {
     let header = frame_header_posed(params, roll_deg, pose_error_deg)?;
-    write_recording(path, &[(&header, frame)])?;
+    let headers: Vec<_> = (0..frames.len())
+        .map(|i| {
+            let mut h = header.clone();
+            h.frame_index = i as u32;
+            h
+        })
+        .collect();
+    let records: Vec<_> = headers.iter().zip(frames).map(|(h, f)| (h, *f)).collect();
+    write_recording(path, &records)?;
     Ok(())
 }
 
@@ -98,9 +113,16 @@ pub fn write_sample(
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     for (k, frame) in s.frames.iter().enumerate() {
+        let mut recorded: Vec<&[u8]> = s
+            .pings
+            .get(k)
+            .map_or(Vec::new(), |p| p.iter().map(Vec::as_slice).collect());
+        if recorded.is_empty() {
+            recorded.push(frame);
+        }
         write_aris(
             &dir.join(format!("view{k}.aris")),
-            frame,
+            &recorded,
             s.scene.view_rolls_deg[k],
             s.scene
                 .view_pose_errors_deg

@@ -550,3 +550,58 @@ fn pings_averaged_as_frames_shrink_the_speckle_like_looks_in_intensity() {
         .unwrap()
         .contains("ping_frames"));
 }
+
+#[test]
+fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
+    // With `ping_frames` every view file records its L pings; averaging them with the library
+    // (what `host-sim run --pings-per-view L` does) and resampling gives the sample's polar view
+    // byte for byte: a bundled recording carries exactly what the model was trained on.
+    use epssn::ping_average::{IntensityTable, PingAverager};
+    let dir = tempfile::tempdir().unwrap();
+    let params = SonarSimParams {
+        speckle_looks: 4,
+        ping_frames: true,
+        ..SonarSimParams::default()
+    };
+    let params_file = dir.path().join("params.json");
+    std::fs::write(&params_file, serde_json::to_string(&params).unwrap()).unwrap();
+    run(&SimulateArgs {
+        scene: SceneKind::Artificial,
+        pairs: Some(1),
+        seed: 4,
+        out: dir.path().join("out"),
+        split: Split::Test,
+        views: 3,
+        no_preview: true,
+        params: Some(params_file),
+        pose_jitter_deg: 0.0,
+        pose_jitter_axes: epssn_sim::simulate::JitterAxes::Both,
+    })
+    .unwrap();
+    let d = dir.path().join("out/test/000000");
+    let s = Sample::load(&d).unwrap();
+    let table = IntensityTable::new(params.dynamic_range_db as f32).unwrap();
+    for k in 0..3 {
+        let reader = epssn_aris::aris::ArisReader::open(d.join(format!("view{k}.aris"))).unwrap();
+        assert_eq!(reader.frame_count(), 4, "view {k}");
+        let mut average = reader.frame(0).unwrap();
+        let mut sum = vec![0f32; average.data.len()];
+        let mut averager = PingAverager::new(&table, &mut sum);
+        for i in 0..4 {
+            let ping = reader.frame(i).unwrap();
+            assert_eq!(ping.header.frame_index, i as u32);
+            assert_eq!(ping.header.sonar_roll_deg, 7.0 * k as f32);
+            if i > 0 {
+                assert_ne!(
+                    ping.data, average.data,
+                    "ping {i} of view {k} is a new draw"
+                );
+            }
+            averager.add(&ping.data).unwrap();
+        }
+        assert_eq!(averager.finish(&mut average.data).unwrap(), 4);
+        let polar = epssn_aris::polar::frame_to_polar(&average).unwrap();
+        let f: Vec<f32> = polar.iter().map(|x| *x as f32).collect();
+        assert_eq!(f, s.polar_views[k], "view {k}");
+    }
+}
