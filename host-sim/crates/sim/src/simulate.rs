@@ -198,6 +198,24 @@ pub struct SimulateArgs {
     /// (the sign random), to tell their effects apart.
     #[arg(long, value_enum, default_value_t = JitterAxes::Both)]
     pub pose_jitter_axes: JitterAxes,
+    /// Study option: every terrain and tank sample seen from one pose, the middle of the drawn
+    /// ranges (tilt 20°, boresight meeting flat ground at 2.75 m, heading 0); the terrain and
+    /// the objects stay as drawn. Measures what the pose's spread costs (docs/ACCURACY.md).
+    #[arg(long)]
+    pub fixed_pose: bool,
+}
+
+/// The pose of `--fixed-pose`: the middle of `scene::looking_down`'s ranges.
+pub fn fix_pose(scene: &mut Scene) {
+    if scene.sonar == crate::scene::SonarPose::IDENTITY {
+        return; // sphere: the pose is already fixed
+    }
+    let (tilt_deg, slant_m) = (20.0f64, 2.75);
+    scene.sonar = crate::scene::SonarPose {
+        position_m: [0.0, 0.0, slant_m * tilt_deg.to_radians().sin()],
+        yaw_deg: 0.0,
+        tilt_deg,
+    };
 }
 
 /// Axes of `--pose-jitter-deg`.
@@ -292,6 +310,9 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         .try_for_each(|i| -> Result<()> {
             let mut scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
             jitter_pose(&mut scene, args.pose_jitter_deg, args.pose_jitter_axes);
+            if args.fixed_pose {
+                fix_pose(&mut scene);
+            }
             let data = simulate_scene(&scene, &params)?;
             write_sample(
                 &sample_dir(&args.out, args.split, i),

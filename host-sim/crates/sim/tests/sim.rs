@@ -88,6 +88,7 @@ fn simulate_jittered(
         params: None,
         pose_jitter_deg: jitter,
         pose_jitter_axes: epssn_sim::simulate::JitterAxes::Both,
+        fixed_pose: false,
     })
     .unwrap();
 }
@@ -576,6 +577,7 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
         params: Some(params_file),
         pose_jitter_deg: 0.0,
         pose_jitter_axes: epssn_sim::simulate::JitterAxes::Both,
+        fixed_pose: false,
     })
     .unwrap();
     let d = dir.path().join("out/test/000000");
@@ -604,4 +606,32 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
         let f: Vec<f32> = polar.iter().map(|x| *x as f32).collect();
         assert_eq!(f, s.polar_views[k], "view {k}");
     }
+}
+
+#[test]
+fn fixed_pose_moves_the_sonar_and_keeps_the_scene() {
+    // `--fixed-pose` (a study option): one pose for every terrain and tank sample, the terrain
+    // and objects as drawn; spheres keep their identity pose.
+    use epssn_sim::simulate::fix_pose;
+    for kind in [SceneKind::Terrain, SceneKind::Artificial] {
+        let poses: Vec<_> = (0..3)
+            .map(|i| {
+                let drawn = generate(kind, Split::Test, 5, i, 2);
+                let mut fixed = drawn.clone();
+                fix_pose(&mut fixed);
+                assert_ne!(fixed.sonar, drawn.sonar);
+                assert_eq!(fixed.objects, drawn.objects);
+                assert!((fixed.sonar.tilt_deg - 20.0).abs() < 1e-12);
+                // The boresight meets flat ground at 2.75 m.
+                let slant = fixed.sonar.position_m[2] / fixed.sonar.tilt_deg.to_radians().sin();
+                assert!((slant - 2.75).abs() < 1e-12);
+                fixed.sonar
+            })
+            .collect();
+        assert!(poses.windows(2).all(|w| w[0] == w[1]), "{kind:?}");
+    }
+    let sphere = generate(SceneKind::Sphere, Split::Test, 5, 0, 2);
+    let mut fixed = sphere.clone();
+    fix_pose(&mut fixed);
+    assert_eq!(fixed, sphere);
 }
