@@ -260,35 +260,6 @@ pub fn ping_bursts(rolls: &[Option<f64>], pings: usize) -> BTreeMap<usize, Vec<u
     out
 }
 
-/// The frames `pings` averaged in intensity into one frame with the first's header.
-fn average_pings(
-    reader: &ArisReader,
-    pings: &[usize],
-    table: &ping_average::IntensityTable,
-) -> Result<epssn_aris::aris::Frame> {
-    let mut first = reader.frame(pings[0])?;
-    if pings.len() == 1 {
-        return Ok(first);
-    }
-    let mut sum = vec![0f32; first.data.len()];
-    let mut avg = ping_average::PingAverager::new(table, &mut sum);
-    avg.add(&first.data)
-        .map_err(|e| anyhow::anyhow!("frame {}: {e:?}", pings[0]))?;
-    for &p in &pings[1..] {
-        let f = reader.frame(p)?;
-        ensure!(
-            (f.beams, f.samples_per_beam) == (first.beams, first.samples_per_beam),
-            "frames {} and {p} differ in geometry: their pings cannot be averaged",
-            pings[0]
-        );
-        avg.add(&f.data)
-            .map_err(|e| anyhow::anyhow!("frame {p}: {e:?}"))?;
-    }
-    avg.finish(&mut first.data)
-        .map_err(|e| anyhow::anyhow!("averaging frames {pings:?}: {e:?}"))?;
-    Ok(first)
-}
-
 fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
     let d = dir.join(format!("depth_{frame:04}.npy"));
     if !d.exists() {
@@ -499,7 +470,7 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     })?;
     for &f in groups.iter().flatten() {
         if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
-            e.insert(polar::frame_to_polar(&average_pings(
+            e.insert(polar::frame_to_polar(&polar::average_pings(
                 &reader,
                 &pings_of(f),
                 &table,

@@ -1,8 +1,9 @@
 //! ARIS frame → the model's polar input image, through the library's one resampler.
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, ensure, Result};
 use epssn::config;
 use epssn::geometry::{resample_to_grid, Grid};
+use epssn::ping_average::{IntensityTable, PingAverager};
 
 use crate::aris::{ArisReader, Frame};
 
@@ -71,4 +72,36 @@ pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
         }
     }
     Ok((!why.is_empty()).then(|| why.join("; ")))
+}
+
+/// The frames `pings` of a recording (a view's pings at one roll) averaged in intensity
+/// (`epssn::ping_average`) into one frame with the first's header: what `host-sim run
+/// --pings-per-view` feeds [`frame_to_polar`].
+pub fn average_pings(
+    reader: &ArisReader,
+    pings: &[usize],
+    table: &IntensityTable,
+) -> Result<Frame> {
+    let (&head, rest) = pings
+        .split_first()
+        .ok_or_else(|| anyhow!("no frames to average"))?;
+    let mut first = reader.frame(head)?;
+    if rest.is_empty() {
+        return Ok(first);
+    }
+    let mut sum = vec![0f32; first.data.len()];
+    let mut avg = PingAverager::new(table, &mut sum);
+    avg.add(&first.data)
+        .map_err(|e| anyhow!("frame {head}: {e:?}"))?;
+    for &p in rest {
+        let f = reader.frame(p)?;
+        ensure!(
+            (f.beams, f.samples_per_beam) == (first.beams, first.samples_per_beam),
+            "frames {head} and {p} differ in geometry: their pings cannot be averaged"
+        );
+        avg.add(&f.data).map_err(|e| anyhow!("frame {p}: {e:?}"))?;
+    }
+    avg.finish(&mut first.data)
+        .map_err(|e| anyhow!("averaging frames {pings:?}: {e:?}"))?;
+    Ok(first)
 }

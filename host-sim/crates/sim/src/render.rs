@@ -284,6 +284,12 @@ pub fn render_view(
     let ping_table = (params.ping_frames && params.speckle && looks > 1)
         .then(|| epssn::ping_average::IntensityTable::new(params.dynamic_range_db as f32).ok())
         .flatten();
+    // Pings recorded one by one only when they are averaged as frames.
+    let recorded_pings = if ping_table.is_some() {
+        looks as usize
+    } else {
+        0
+    };
     let columns: Vec<(Vec<u8>, Vec<Vec<u8>>)> = (0..beams)
         .into_par_iter()
         .map(|b| {
@@ -293,14 +299,7 @@ pub fn render_view(
             };
             let bi = b as i64;
             let mut out = vec![0u8; ns];
-            let mut pings = vec![
-                vec![0u8; ns];
-                if ping_table.is_some() {
-                    looks as usize
-                } else {
-                    0
-                }
-            ];
+            let mut pings = vec![vec![0u8; ns]; recorded_pings];
             for (s, o) in out.iter_mut().enumerate() {
                 let mut v = (1.0 - 2.0 * c1 - 2.0 * c2) * profiles[b].intensity[s];
                 for (off, c) in [(1, c1), (2, c2)] {
@@ -337,7 +336,7 @@ pub fn render_view(
     let mut samples = vec![0u8; ns * beams];
     let mut weight = vec![0.0; ns * beams];
     let mut weighted_elevation = vec![0.0; ns * beams];
-    let mut pings = vec![vec![0u8; ns * beams]; columns.first().map_or(0, |c| c.1.len())];
+    let mut pings = vec![vec![0u8; ns * beams]; recorded_pings];
     for b in 0..beams {
         for s in 0..ns {
             samples[s * beams + b] = columns[b].0[s];

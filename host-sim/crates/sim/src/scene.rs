@@ -343,15 +343,39 @@ fn draw_sphere(rng: &mut ChaCha8Rng) -> Object {
     }
 }
 
-/// A pose looking down at the floor so that the boresight meets flat ground at `slant` metres.
-fn looking_down(rng: &mut ChaCha8Rng, yaw_range: f64) -> SonarPose {
-    let tilt = uniform(rng, 15.0, 25.0);
-    let slant = uniform(rng, 2.5, 3.0);
-    SonarPose {
-        position_m: [0.0, 0.0, slant * deg_to_rad(tilt).sin()],
-        yaw_deg: uniform(rng, -yaw_range, yaw_range),
-        tilt_deg: tilt,
+/// Downward tilt of terrain and tank poses, degrees: drawn uniformly in this range.
+const TILT_RANGE_DEG: (f64, f64) = (15.0, 25.0);
+/// Range at which the boresight meets flat ground, metres: drawn uniformly in this range.
+const SLANT_RANGE_M: (f64, f64) = (2.5, 3.0);
+
+impl SonarPose {
+    /// Looking down `tilt_deg` from the height at which the boresight meets flat ground at
+    /// `slant_m`, headed `yaw_deg`.
+    fn looking_down(tilt_deg: f64, slant_m: f64, yaw_deg: f64) -> Self {
+        Self {
+            position_m: [0.0, 0.0, slant_m * deg_to_rad(tilt_deg).sin()],
+            yaw_deg,
+            tilt_deg,
+        }
     }
+}
+
+/// A pose drawn from the tilt and slant ranges, heading within ±`yaw_range` degrees.
+fn looking_down(rng: &mut ChaCha8Rng, yaw_range: f64) -> SonarPose {
+    let tilt = uniform(rng, TILT_RANGE_DEG.0, TILT_RANGE_DEG.1);
+    let slant = uniform(rng, SLANT_RANGE_M.0, SLANT_RANGE_M.1);
+    SonarPose::looking_down(tilt, slant, uniform(rng, -yaw_range, yaw_range))
+}
+
+/// `simulate --fixed-pose` (a study option): a terrain or tank scene seen from the middle of
+/// the drawn ranges (tilt 20°, slant 2.75 m, heading 0), its terrain and objects as drawn.
+/// Spheres keep their identity pose.
+pub fn fix_pose(scene: &mut Scene) {
+    if scene.kind == SceneKind::Sphere {
+        return;
+    }
+    let middle = |(lo, hi): (f64, f64)| (lo + hi) / 2.0;
+    scene.sonar = SonarPose::looking_down(middle(TILT_RANGE_DEG), middle(SLANT_RANGE_M), 0.0);
 }
 
 fn draw_terrain(rng: &mut ChaCha8Rng, split: Split) -> (SonarPose, Vec<Object>) {

@@ -22,7 +22,7 @@ use rayon::prelude::*;
 
 use crate::groundtruth::{elevation_map, front_depth, polar_image};
 use crate::render::{frame_header_posed, render_view, SonarSimParams};
-use crate::scene::{generate, Scene, SceneKind, Split, World};
+use crate::scene::{fix_pose, generate, Scene, SceneKind, Split, World};
 use epssn_aris::aris::write_recording;
 
 /// Everything written for one sample.
@@ -113,13 +113,11 @@ pub fn write_sample(
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     for (k, frame) in s.frames.iter().enumerate() {
-        let mut recorded: Vec<&[u8]> = s
-            .pings
-            .get(k)
-            .map_or(Vec::new(), |p| p.iter().map(Vec::as_slice).collect());
-        if recorded.is_empty() {
-            recorded.push(frame);
-        }
+        // The pings when they were recorded one by one, else the frame.
+        let recorded: Vec<&[u8]> = match s.pings.get(k) {
+            Some(pings) if !pings.is_empty() => pings.iter().map(Vec::as_slice).collect(),
+            _ => vec![frame],
+        };
         write_aris(
             &dir.join(format!("view{k}.aris")),
             &recorded,
@@ -203,19 +201,6 @@ pub struct SimulateArgs {
     /// the objects stay as drawn. Measures what the pose's spread costs (docs/ACCURACY.md).
     #[arg(long)]
     pub fixed_pose: bool,
-}
-
-/// The pose of `--fixed-pose`: the middle of `scene::looking_down`'s ranges.
-pub fn fix_pose(scene: &mut Scene) {
-    if scene.sonar == crate::scene::SonarPose::IDENTITY {
-        return; // sphere: the pose is already fixed
-    }
-    let (tilt_deg, slant_m) = (20.0f64, 2.75);
-    scene.sonar = crate::scene::SonarPose {
-        position_m: [0.0, 0.0, slant_m * tilt_deg.to_radians().sin()],
-        yaw_deg: 0.0,
-        tilt_deg,
-    };
 }
 
 /// Axes of `--pose-jitter-deg`.

@@ -557,7 +557,7 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
     // With `ping_frames` every view file records its L pings; averaging them with the library
     // (what `host-sim run --pings-per-view L` does) and resampling gives the sample's polar view
     // byte for byte: a bundled recording carries exactly what the model was trained on.
-    use epssn::ping_average::{IntensityTable, PingAverager};
+    use epssn::ping_average::IntensityTable;
     let dir = tempfile::tempdir().unwrap();
     let params = SonarSimParams {
         speckle_looks: 4,
@@ -586,22 +586,17 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
     for k in 0..3 {
         let reader = epssn_aris::aris::ArisReader::open(d.join(format!("view{k}.aris"))).unwrap();
         assert_eq!(reader.frame_count(), 4, "view {k}");
-        let mut average = reader.frame(0).unwrap();
-        let mut sum = vec![0f32; average.data.len()];
-        let mut averager = PingAverager::new(&table, &mut sum);
+        let first = reader.frame(0).unwrap();
         for i in 0..4 {
             let ping = reader.frame(i).unwrap();
             assert_eq!(ping.header.frame_index, i as u32);
             assert_eq!(ping.header.sonar_roll_deg, 7.0 * k as f32);
             if i > 0 {
-                assert_ne!(
-                    ping.data, average.data,
-                    "ping {i} of view {k} is a new draw"
-                );
+                assert_ne!(ping.data, first.data, "ping {i} of view {k} is a new draw");
             }
-            averager.add(&ping.data).unwrap();
         }
-        assert_eq!(averager.finish(&mut average.data).unwrap(), 4);
+        // Averaged as `host-sim run --pings-per-view 4` averages them.
+        let average = epssn_aris::polar::average_pings(&reader, &[0, 1, 2, 3], &table).unwrap();
         let polar = epssn_aris::polar::frame_to_polar(&average).unwrap();
         let f: Vec<f32> = polar.iter().map(|x| *x as f32).collect();
         assert_eq!(f, s.polar_views[k], "view {k}");
@@ -612,7 +607,7 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
 fn fixed_pose_moves_the_sonar_and_keeps_the_scene() {
     // `--fixed-pose` (a study option): one pose for every terrain and tank sample, the terrain
     // and objects as drawn; spheres keep their identity pose.
-    use epssn_sim::simulate::fix_pose;
+    use epssn_sim::scene::fix_pose;
     for kind in [SceneKind::Terrain, SceneKind::Artificial] {
         let poses: Vec<_> = (0..3)
             .map(|i| {
