@@ -15,7 +15,8 @@ use anyhow::{anyhow, ensure, Context, Result};
 use epssn::config::LAYERS;
 use rayon::prelude::*;
 
-use crate::quantise::{quantise_weights, SearchPixels};
+use crate::calibration::SearchPixels;
+use crate::quantiser::quantise_weights;
 use epssn_reference::float::WeightLayout;
 use epssn_reference::floatref::{fold_all, run_folded, FoldedWeights};
 
@@ -106,7 +107,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
     // The codes a tensor's int8 values stand for: the cost volume's follow the blob's zero point.
     let cost_zero = model.cost_zero_point();
     let codes = |name: &str| {
-        let (lo, hi) = crate::quantise::codes(name, cost_zero);
+        let (lo, hi) = crate::quantiser::codes(name, cost_zero);
         (lo as f32, hi as f32)
     };
 
@@ -153,7 +154,7 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
 
     let folded = fold_all(&weights)?;
     let folded_q = fake_quant_weights(&folded, &scales);
-    let views_n = crate::quantise::int8_views(&args.weights)?;
+    let views_n = epssn_reference::weights::int8_views(&args.weights)?;
     // Per sample: (diff from float, MAE vs GT) per config, then the library's.
     let per_sample: Vec<Vec<(f64, f64, f64)>> = dirs
         .par_iter()
