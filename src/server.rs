@@ -1,9 +1,17 @@
 //! The link server the firmware runs: decodes messages from any `embedded_io` byte stream,
 //! pairs frames by roll and checks each candidate pair's relative rotation (docs/POSE.md),
 //! answers with depth maps, status and errors (docs/LINK.md).
-//! Board-independent: the UART comes in as `embedded_io` traits, the busy LED as an
+//! Board-independent: the UART comes in as `embedded_io` 0.7 traits, the busy LED as an
 //! `embedded_hal` [`OutputPin`], the clock and the stack probe as closures, so host tests drive
 //! it with a mock serial line and pin.
+//!
+//! The serial line is taken as a UART is, not as a file: errors on the read side (overrun,
+//! framing, noise, parity) are line errors, not the end of the link. The bytes they cost are
+//! lost and the link decoder resynchronises on the next sync pattern, answering the damaged
+//! message with an error as it does for corrupt bytes; the server counts them
+//! ([`Server::line_errors`]). A read that returns no bytes (`Ok(0)`, which some drivers' blocking
+//! reads return on an empty receive ring) is retried, never taken as the end of the stream.
+//! Only a write error, or a `shutdown` message, ends [`Server::serve`].
 
 #[cfg(feature = "defmt")]
 macro_rules! log {
@@ -46,6 +54,9 @@ pub struct Server<'a> {
     pub stack_high_water: &'a dyn Fn() -> u32,
     /// Counters.
     pub status: Status,
+    /// Read-side errors of the serial line since start (each lost one or more bytes). Not on
+    /// the wire (the status reply's fields are docs/LINK.md's): boards log it.
+    pub line_errors: u32,
     tx_seq: u32,
 }
 
@@ -72,8 +83,16 @@ impl<'a> Server<'a> {
             idle_ticks,
             stack_high_water,
             status: Status::default(),
+            line_errors: 0,
             tx_seq: 0,
         }
+    }
+
+    /// A read-side error of the line: counted (and logged); the link goes on.
+    fn line_error<E: embedded_io::Error>(&mut self, _error: &E) {
+        self.line_errors = self.line_errors.wrapping_add(1);
+        #[cfg(feature = "defmt")]
+        defmt::warn!("link line error: {}", defmt::Debug2Format(_error));
     }
 
     fn next_seq(&mut self) -> u32 {
@@ -257,7 +276,9 @@ impl<'a> Server<'a> {
         Ok(false)
     }
 
-    /// Serves until a shutdown message.
+    /// Serves until a shutdown message (`Ok`) or a write error (`Err`). Read-side errors
+    /// are counted in [`Server::line_errors`] and served through (see the module
+    /// documentation).
     pub fn serve<U, L>(
         &mut self,
         uart: &mut U,
@@ -271,8 +292,26 @@ impl<'a> Server<'a> {
         let mut last_rx = (self.now)();
         let mut buf = [0u8; 64];
         loop {
-            if uart.read_ready()? {
-                let n = uart.read(&mut buf)?;
+            let ready = match uart.read_ready() {
+                Ok(ready) => ready,
+                Err(e) => {
+                    self.line_error(&e);
+                    false
+                }
+            };
+            // `read` only when bytes are there, so the loop keeps checking the idle time.
+            let n = if ready {
+                match uart.read(&mut buf) {
+                    Ok(n) => n,
+                    Err(e) => {
+                        self.line_error(&e);
+                        0
+                    }
+                }
+            } else {
+                0
+            };
+            if n > 0 {
                 for &b in buf.get(..n).unwrap_or(&[]) {
                     decoder.push(b);
                     while let Some(event) = decoder.poll() {

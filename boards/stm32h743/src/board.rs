@@ -10,8 +10,6 @@ use embassy_stm32::usart::{self, BufferedUart};
 use embassy_stm32::{bind_interrupts, peripherals};
 use epssn_selftest::Stack;
 
-use crate::uart::Link;
-
 /// Core clock: PLL1 P.
 pub const CPU_HZ: u32 = 480_000_000;
 /// The link's bit rate, 8N1. The ST-LINK/V3 bridge of the Nucleo-H743ZI2 takes it; the
@@ -36,8 +34,10 @@ static mut TX_BUF: MaybeUninit<[u8; TX_RING]> = MaybeUninit::uninit();
 pub struct Board {
     /// LD1 (green, PB0), lit while computing a depth map.
     pub busy_led: Output<'static>,
-    /// The vehicle's serial line.
-    pub link: Link<'static>,
+    /// The vehicle's serial line, as the library's server takes it (embedded-io 0.7). Its
+    /// blocking read returns `Ok(0)` on an empty ring; the server only reads when
+    /// `read_ready`, retries an empty read and counts read errors as line errors.
+    pub link: BufferedUart<'static>,
 }
 
 /// The clock tree, from the 64 MHz HSI (no dependence on the module's crystal or the ST-LINK's
@@ -103,7 +103,7 @@ pub fn init() -> Board {
         .expect("USART3 at the link's baud rate");
     Board {
         busy_led,
-        link: Link::new(uart),
+        link: uart,
     }
 }
 

@@ -15,7 +15,6 @@
 #![no_main]
 
 mod board;
-mod uart;
 
 use core::mem::MaybeUninit;
 
@@ -116,7 +115,7 @@ fn main() -> ! {
     let r = server.serve(&mut board.link, &mut board.busy_led, decoder);
     defmt::info!(
         "link shut down ({=u32} line errors): {}; resetting",
-        board.link.line_errors,
+        server.line_errors,
         defmt::Debug2Format(&r)
     );
     cortex_m::peripheral::SCB::sys_reset()
