@@ -13,40 +13,123 @@ use epssn::server::Server;
 use epssn_tests::{synthetic_image, Rng};
 use fixed::types::U16F16;
 
-/// A serial line: reads what the test queued, records what the server writes.
+/// A read-side error of the mock line, as a UART reports them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum LineError {
+    Overrun,
+    Noise,
+}
+
+impl std::fmt::Display for LineError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "line error: {self:?}")
+    }
+}
+
+impl std::error::Error for LineError {}
+
+impl embedded_io::Error for LineError {
+    fn kind(&self) -> embedded_io::ErrorKind {
+        // What embassy-stm32 reports for every USART error.
+        embedded_io::ErrorKind::Other
+    }
+}
+
+/// What the line does at one call of `read` (or, for `ReadyError`, of `read_ready`).
+#[derive(Debug, Clone, Copy)]
+enum Step {
+    /// Up to this many of the queued bytes (a UART FIFO delivers a few at a time).
+    Bytes(usize),
+    /// `read` fails with an overrun that cost this many queued bytes.
+    Error { lost: usize },
+    /// `read` returns `Ok(0)`: an empty receive ring (a driver's blocking read may).
+    Empty,
+    /// `read_ready` fails (noise); the next step is `read`'s.
+    ReadyError,
+}
+
+/// A serial line: reads what the test queued, following a script of steps (the last step
+/// repeats once the script is done), records what the server writes.
 struct MockSerial {
     rx: Vec<u8>,
     at: usize,
     tx: Vec<u8>,
+    script: Vec<Step>,
+    step: usize,
+    /// Errors the line reported.
+    errors: u32,
+}
+
+impl MockSerial {
+    /// A clean line.
+    fn new(rx: Vec<u8>) -> Self {
+        Self::scripted(rx, vec![Step::Bytes(7)])
+    }
+
+    fn scripted(rx: Vec<u8>, script: Vec<Step>) -> Self {
+        assert!(!script.is_empty());
+        Self {
+            rx,
+            at: 0,
+            tx: Vec::new(),
+            script,
+            step: 0,
+            errors: 0,
+        }
+    }
+
+    fn current(&self) -> Step {
+        self.script[self.step.min(self.script.len() - 1)]
+    }
 }
 
 impl embedded_io::ErrorType for MockSerial {
-    type Error = Infallible;
+    type Error = LineError;
 }
 
 impl embedded_io::Read for MockSerial {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        // A few bytes at a time, as a UART FIFO delivers them.
-        let n = buf.len().min(7).min(self.rx.len() - self.at);
-        buf[..n].copy_from_slice(&self.rx[self.at..self.at + n]);
-        self.at += n;
-        Ok(n)
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, LineError> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        let step = self.current();
+        self.step += 1;
+        let left = self.rx.len() - self.at;
+        match step {
+            Step::Bytes(n) => {
+                let n = buf.len().min(n).min(left);
+                buf[..n].copy_from_slice(&self.rx[self.at..self.at + n]);
+                self.at += n;
+                Ok(n)
+            }
+            Step::Error { lost } => {
+                self.at += lost.min(left);
+                self.errors += 1;
+                Err(LineError::Overrun)
+            }
+            Step::Empty | Step::ReadyError => Ok(0),
+        }
     }
 }
 
 impl embedded_io::ReadReady for MockSerial {
-    fn read_ready(&mut self) -> Result<bool, Infallible> {
+    fn read_ready(&mut self) -> Result<bool, LineError> {
+        if let Step::ReadyError = self.current() {
+            self.step += 1;
+            self.errors += 1;
+            return Err(LineError::Noise);
+        }
         Ok(self.at < self.rx.len())
     }
 }
 
 impl embedded_io::Write for MockSerial {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, LineError> {
         self.tx.extend_from_slice(buf);
         Ok(buf.len())
     }
 
-    fn flush(&mut self) -> Result<(), Infallible> {
+    fn flush(&mut self) -> Result<(), LineError> {
         Ok(())
     }
 }
@@ -180,6 +263,15 @@ fn blob() -> Vec<u8> {
 
 /// Serves `input` to the end (it must end with a shutdown) and returns the replies and the pin.
 fn serve(blob: &[u8], input: Vec<u8>) -> (Vec<Reply>, MockPin) {
+    let (replies, pin, line_errors) = serve_on(blob, MockSerial::new(input));
+    assert_eq!(line_errors, 0);
+    (replies, pin)
+}
+
+/// Serves what `serial` holds to the end (it must end with a shutdown) and returns the
+/// replies, the pin and the line errors the server counted (checked against those the line
+/// reported).
+fn serve_on(blob: &[u8], mut serial: MockSerial) -> (Vec<Reply>, MockPin, u32) {
     let model = Model::from_blob(blob).unwrap();
     let mut ws = Box::new(Workspace::new());
     let mut cache = Box::new(FeatureCache::new());
@@ -201,15 +293,14 @@ fn serve(blob: &[u8], input: Vec<u8>) -> (Vec<Reply>, MockPin) {
         1_000_000,
         &high_water,
     );
-    let mut serial = MockSerial {
-        rx: input,
-        at: 0,
-        tx: Vec::new(),
-    };
     let mut pin = MockPin::default();
     server.serve(&mut serial, &mut pin, &mut decoder).unwrap();
     assert_eq!(serial.at, serial.rx.len(), "the server stopped early");
-    (replies(&serial.tx), pin)
+    assert_eq!(
+        server.line_errors, serial.errors,
+        "every line error counted"
+    );
+    (replies(&serial.tx), pin, server.line_errors)
 }
 
 #[test]
@@ -538,6 +629,97 @@ fn a_three_view_blob_pairs_three_frames() {
                 bits: expected,
             },
             status(3, 1, 0),
+        ]
+    );
+}
+
+/// Line errors and empty reads between bytes: no byte lost, so the replies are a clean line's
+/// (the depth map bit for bit the integer reference's); every error counted; `Ok(0)` is not
+/// the end of the stream.
+#[test]
+fn line_errors_and_empty_reads_between_bytes_are_served_through() {
+    let blob = blob();
+    let mut rng = Rng(41);
+    let reference = synthetic_image(&mut rng, 0.0);
+    let source = synthetic_image(&mut rng, 0.4);
+    let input = wire(&[
+        Message::StatusRequest { seq: 1 },
+        frame(2, 0.0, &reference),
+        frame(3, config::ROLL_STEP_DEG as f32, &source),
+        Message::Shutdown { seq: 4 },
+    ]);
+    // Per 4 bytes: an overrun, two empty reads and a noisy `read_ready`, none losing a byte.
+    let pattern = [
+        Step::Bytes(1),
+        Step::Error { lost: 0 },
+        Step::Empty,
+        Step::Bytes(3),
+        Step::ReadyError,
+        Step::Empty,
+    ];
+    let script: Vec<Step> = pattern
+        .iter()
+        .copied()
+        .cycle()
+        .take(6 * input.len())
+        .collect();
+    let (got, pin, line_errors) = serve_on(&blob, MockSerial::scripted(input.clone(), script));
+    // Two errors per 4 bytes until the shutdown's last byte.
+    let cycles = input.len().div_ceil(4) as u32;
+    let (clean, _) = serve(&blob, input);
+    let expected = reference_depth(&blob, &[&reference, &source]);
+    assert_eq!(
+        got,
+        vec![
+            status(0, 0, 0),
+            status(1, 0, 0),
+            Reply::Depth {
+                reference: 2,
+                sources: vec![3],
+                bits: expected,
+            },
+            status(2, 1, 0),
+        ]
+    );
+    assert_eq!(got, clean);
+    assert!(
+        (2 * cycles - 2..=2 * cycles - 1).contains(&line_errors),
+        "{line_errors} line errors for {cycles} cycles"
+    );
+    assert_eq!(pin.lit, 2);
+    assert!(!pin.high);
+}
+
+/// A line error that loses bytes inside a message: that message is answered with an error,
+/// the decoder resynchronises and the ones behind it are served.
+#[test]
+fn a_line_error_that_loses_bytes_costs_only_its_message() {
+    let first = wire(&[Message::StatusRequest { seq: 1 }]);
+    let input = wire(&[
+        Message::StatusRequest { seq: 1 },
+        Message::StatusRequest { seq: 2 },
+        Message::StatusRequest { seq: 3 },
+        Message::Shutdown { seq: 4 },
+    ]);
+    // Message 2 loses three bytes of its header, its first ten bytes delivered.
+    let script = vec![
+        Step::Bytes(first.len() + 10),
+        Step::Empty,
+        Step::Error { lost: 3 },
+        Step::Empty,
+        Step::Bytes(5),
+    ];
+    let (got, _, line_errors) = serve_on(&blob(), MockSerial::scripted(input, script));
+    assert_eq!(line_errors, 1);
+    assert_eq!(
+        got,
+        vec![
+            status(0, 0, 0),
+            // The damaged header, then the rest of message 2 skipped up to message 3's sync.
+            Reply::Error(ErrorCode::BadJson.code()),
+            Reply::Error(ErrorCode::BadSync.code()),
+            status(0, 0, 2),
+            status(0, 0, 2),
         ]
     );
 }
