@@ -2,11 +2,16 @@
 //! and fed a recording over the link,
 //! every depth map compared bit for bit with the host library (`host-sim sil`), per-layer
 //! instruction counts (`host-sim bench`), and the budgets both enforce.
+//!
+//! `sil` orchestrates a run; `faults` generates every fault it sends (the campaign, the soak's
+//! blocks, the fuzz run); both talk to the device through `device` (QEMU or a serial port, the
+//! reply reader, message bytes), which knows neither.
 
 #![deny(missing_docs)]
 
 pub mod bench;
 pub mod budgets;
+mod device;
 pub mod faults;
 pub mod serial;
 pub mod sil;

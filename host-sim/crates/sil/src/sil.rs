@@ -5,23 +5,22 @@
 //! map (the firmware's timer ticks × 40 under `-icount shift=0`), flash and RAM from the ELF
 //! sections plus the measured stack high-water mark. `--fuzz N` then sends N malformed
 //! messages interleaved with status requests and checks that the firmware always answers.
-//! `--faults N` (default 2) runs the fault campaign of `faults.rs`; `--soak N` instead sends at
-//! least N valid and faulty messages in blocks and checks the stack high-water mark is unchanged.
+//! `--faults N` (default 2) runs the fault campaign; `--soak N` instead sends at least N valid
+//! and faulty messages in blocks and checks the stack high-water mark is unchanged. The faults
+//! of both come from `faults.rs`, the link to the device from `device.rs`; this file is the
+//! orchestration and the report.
 //! `--serial PORT` runs the same checks against a real board (boards/stm32h743) on a serial
 //! port instead of QEMU; its figures are then core cycles, and the QEMU budgets are not applied.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::os::unix::net::UnixStream;
+use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
-use std::sync::{Arc, Mutex};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use epssn::config;
-use epssn::link::{self, kind, Decoder, ErrorCode, Header, Message, Payload};
+use epssn::link::{self, Message};
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
@@ -29,7 +28,11 @@ use serde::Serialize;
 
 use epssn_aris::aris::ArisReader;
 use epssn_aris::polar::frame_to_polar;
-use epssn_sim::synthetic::Rng;
+
+pub(crate) use crate::device::qemu_m7;
+use crate::device::{Device, Reply};
+pub use crate::faults::FuzzReport;
+use crate::faults::{campaign, fuzz, FaultReport};
 
 /// Arguments of `host-sim sil`.
 #[derive(Args, Debug, Clone)]
@@ -76,21 +79,6 @@ pub struct SilArgs {
     /// The serial port's baud rate (the board's `LINK_BAUD`).
     #[arg(long, default_value_t = 921_600)]
     pub baud: u32,
-}
-
-/// Counts of a fuzz run.
-#[derive(Serialize, Debug, Clone, Default, PartialEq)]
-pub struct FuzzReport {
-    /// Malformed messages sent, per kind.
-    pub sent: std::collections::BTreeMap<String, usize>,
-    /// Error replies received, per error code name.
-    pub error_replies: std::collections::BTreeMap<String, usize>,
-    /// Status requests sent between the malformed messages.
-    pub status_requests: usize,
-    /// Status replies received to them.
-    pub status_replies: usize,
-    /// Malformed messages that got no error reply before the next status reply.
-    pub unanswered: usize,
 }
 
 /// What a soak (`--soak N`) adds to the fault campaign's table.
@@ -169,7 +157,7 @@ pub struct SilReport {
     /// The fuzz run, if any.
     pub fuzz: Option<FuzzReport>,
     /// The fault campaign, if any (with `--soak`, the soak's blocks summed).
-    pub faults: Option<crate::faults::FaultReport>,
+    pub faults: Option<FaultReport>,
     /// The soak, with `--soak N`.
     pub soak: Option<SoakReport>,
     /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
@@ -343,407 +331,9 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
 /// Frames streamed again after the fault campaign (enough for a few depth maps).
 const AFTER_FAULTS_FRAMES: usize = 6;
 
-/// An owned device reply.
-#[derive(Debug, Clone)]
-// The texts are read through `Debug` in error messages.
-#[allow(dead_code)]
-pub(crate) enum Reply {
-    Depth {
-        reference: u32,
-        sources: Vec<u32>,
-        instructions: u32,
-        bits: Vec<u32>,
-    },
-    Status(link::Status),
-    /// The device's hello reply, with its counters.
-    Hello(link::Status),
-    Error {
-        code: u16,
-        msg: String,
-    },
-    /// A reply the host could not decode (the firmware must never send one).
-    Garbled(String),
-    Other(String),
-}
-
-fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
-    match event {
-        Ok(Message::Depth {
-            reference,
-            sources,
-            instructions,
-            depth,
-            ..
-        }) => Reply::Depth {
-            reference,
-            sources: sources.to_vec(),
-            instructions,
-            bits: (0..depth.len())
-                .filter_map(|i| depth.get(i).map(|d| d.to_bits()))
-                .collect(),
-        },
-        Ok(Message::Status { status, .. }) => Reply::Status(status),
-        Ok(Message::Hello {
-            status: Some(status),
-            ..
-        }) => Reply::Hello(status),
-        Ok(Message::Error { code, msg, .. }) => Reply::Error {
-            code,
-            msg: msg.to_string(),
-        },
-        Ok(m) => Reply::Other(m.kind().to_string()),
-        Err(e) => Reply::Garbled(e.to_string()),
-    }
-}
-
 /// The default ELF of the STM32H743 board (`boards/stm32h743`, release).
 fn board_elf() -> PathBuf {
     repo_root().join("boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743")
-}
-
-/// QEMU running the firmware (or a board on a serial port), its link and the reply reader.
-pub(crate) struct Device {
-    qemu: Option<Child>,
-    link: Box<dyn Write + Send>,
-    replies: Receiver<Reply>,
-    console: Arc<Mutex<Vec<String>>>,
-    dir: PathBuf,
-    timeout: Duration,
-}
-
-/// `qemu-system-arm` on the emulated Cortex-M7 board, no display or monitor; callers add the
-/// serial, semihosting and timing options.
-pub(crate) fn qemu_m7() -> Command {
-    let mut c = Command::new("qemu-system-arm");
-    c.args([
-        "-machine",
-        "mps2-an500",
-        "-cpu",
-        "cortex-m7",
-        "-nographic",
-        "-monitor",
-        "none",
-    ]);
-    c
-}
-
-impl Device {
-    fn boot(elf: &Path, timeout: Duration) -> Result<Self> {
-        let dir = std::env::temp_dir().join(format!("epssn-sil-{}", std::process::id()));
-        std::fs::create_dir_all(&dir)?;
-        let sock = dir.join("link.sock");
-        let _ = std::fs::remove_file(&sock);
-        let mut qemu = qemu_m7()
-            .args([
-                "-semihosting-config",
-                "enable=on,target=native,arg=serve",
-                "-icount",
-                "shift=0",
-                "-chardev",
-            ])
-            .arg(format!(
-                "socket,id=link,path={},server=on,wait=on",
-                sock.display()
-            ))
-            .args(["-serial", "chardev:link", "-kernel"])
-            .arg(elf)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .context("starting qemu-system-arm (is QEMU installed?)")?;
-        let console = Arc::new(Mutex::new(Vec::new()));
-        for pipe in [
-            qemu.stdout
-                .take()
-                .map(|p| Box::new(p) as Box<dyn Read + Send>),
-            qemu.stderr
-                .take()
-                .map(|p| Box::new(p) as Box<dyn Read + Send>),
-        ]
-        .into_iter()
-        .flatten()
-        {
-            let console = console.clone();
-            std::thread::spawn(move || {
-                for line in BufReader::new(pipe).lines().map_while(|l| l.ok()) {
-                    if let Ok(mut c) = console.lock() {
-                        c.push(line);
-                    }
-                }
-            });
-        }
-        let start = Instant::now();
-        let link = loop {
-            match UnixStream::connect(&sock) {
-                Ok(s) => break s,
-                Err(e) => {
-                    if let Ok(Some(status)) = qemu.try_wait() {
-                        bail!("QEMU exited before the link came up ({status})");
-                    }
-                    if start.elapsed() > Duration::from_secs(20) {
-                        let _ = qemu.kill();
-                        bail!("QEMU link socket {}: {e}", sock.display());
-                    }
-                    std::thread::sleep(Duration::from_millis(50));
-                }
-            }
-        };
-        let reader = link.try_clone()?;
-        let mut device = Self::over(Box::new(link), Box::new(reader), timeout);
-        device.qemu = Some(qemu);
-        device.console = console;
-        device.dir = dir;
-        Ok(device)
-    }
-
-    /// A board on a serial port: no process, the port is the link.
-    fn serial(port: &Path, baud: u32, timeout: Duration) -> Result<Self> {
-        let file = crate::serial::open(port, baud)?;
-        let reader = file.try_clone()?;
-        Ok(Self::over(Box::new(file), Box::new(reader), timeout))
-    }
-
-    /// The reply reader on `reader`, messages out on `link`.
-    fn over(
-        link: Box<dyn Write + Send>,
-        mut reader: Box<dyn Read + Send>,
-        timeout: Duration,
-    ) -> Self {
-        let (tx, replies) = channel();
-        std::thread::spawn(move || {
-            let mut decoder = Box::new(Decoder::new());
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = reader.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                for &b in &buf[..n] {
-                    decoder.push(b);
-                    while let Some(ev) = decoder.poll() {
-                        if tx.send(owned(ev)).is_err() {
-                            return;
-                        }
-                    }
-                }
-            }
-        });
-        Self {
-            qemu: None,
-            link,
-            replies,
-            console: Arc::new(Mutex::new(Vec::new())),
-            dir: PathBuf::new(),
-            timeout,
-        }
-    }
-
-    pub(crate) fn send(&mut self, bytes: &[u8]) -> Result<()> {
-        self.link.write_all(bytes).context("writing to the link")
-    }
-
-    fn send_msg(&mut self, msg: &Message<'_>) -> Result<()> {
-        let mut v = Vec::new();
-        link::encode(msg, &mut |b: &[u8]| {
-            v.extend_from_slice(b);
-            Ok::<(), ()>(())
-        })
-        .map_err(|e| anyhow!("encoding: {e:?}"))?;
-        self.send(&v)
-    }
-
-    pub(crate) fn reply(&mut self) -> Result<Reply> {
-        match self.replies.recv_timeout(self.timeout) {
-            Ok(r) => Ok(r),
-            Err(RecvTimeoutError::Timeout) => bail!(
-                "no reply from the firmware within {:?}; console:\n{}",
-                self.timeout,
-                self.console_text()
-            ),
-            Err(RecvTimeoutError::Disconnected) => {
-                bail!("the link closed; console:\n{}", self.console_text())
-            }
-        }
-    }
-
-    fn console_text(&self) -> String {
-        self.console
-            .lock()
-            .map(|c| c.join("\n"))
-            .unwrap_or_default()
-    }
-
-    /// Waits for QEMU to exit; true when it exited successfully (a board resets instead: true).
-    fn wait_exit(&mut self) -> bool {
-        let Some(qemu) = self.qemu.as_mut() else {
-            return true;
-        };
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(30) {
-            if let Ok(Some(status)) = qemu.try_wait() {
-                return status.success();
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        false
-    }
-}
-
-impl Drop for Device {
-    fn drop(&mut self) {
-        if let Some(qemu) = self.qemu.as_mut() {
-            if let Ok(None) = qemu.try_wait() {
-                let _ = qemu.kill();
-                let _ = qemu.wait();
-            }
-            let _ = std::fs::remove_dir_all(&self.dir);
-        }
-    }
-}
-
-pub(crate) fn raw_bytes(h: &Header<'_>, payload: &[u8]) -> Vec<u8> {
-    let mut v = Vec::new();
-    let _ = link::encode_raw(h, Payload::Bytes(payload), &mut |b: &[u8]| {
-        v.extend_from_slice(b);
-        Ok::<(), ()>(())
-    });
-    v
-}
-
-pub(crate) fn msg_bytes(msg: &Message<'_>) -> Vec<u8> {
-    let mut v = Vec::new();
-    let _ = link::encode(msg, &mut |b: &[u8]| {
-        v.extend_from_slice(b);
-        Ok::<(), ()>(())
-    });
-    v
-}
-
-/// One malformed message of a random kind; `seq` is the next valid sequence number and
-/// `last` the last one the device accepted.
-fn malformed(rng: &mut Rng, seq: &mut u32, last: u32, image: &[u8]) -> (&'static str, Vec<u8>) {
-    let frame_header = |seq: u32| Header {
-        t: kind::FRAME,
-        seq,
-        roll: Some(7.0),
-        r: Some(config::INPUT_RANGE_BINS as u32),
-        b: Some(config::INPUT_COLUMNS as u32),
-        len: Some(image.len() as u32),
-        ..Header::default()
-    };
-    let pick = (rng.next_u64() % 8) as usize;
-    *seq += 1;
-    let s = *seq;
-    match pick {
-        0 => {
-            let n = 1 + (rng.next_u64() % 200) as usize;
-            (
-                "random_bytes",
-                (0..n).map(|_| rng.next_u64() as u8).collect(),
-            )
-        }
-        1 => {
-            let full = if rng.next_u64() & 1 == 0 {
-                raw_bytes(&frame_header(s), image)
-            } else {
-                msg_bytes(&Message::StatusRequest { seq: s })
-            };
-            let n = 1 + (rng.next_u64() as usize) % (full.len() - 1);
-            ("truncated", full[..n].to_vec())
-        }
-        2 => {
-            let mut v = if rng.next_u64() & 3 == 0 {
-                raw_bytes(&frame_header(s), image)
-            } else {
-                msg_bytes(&Message::StatusRequest { seq: s })
-            };
-            let at =
-                link::PREAMBLE_LEN + (rng.next_u64() as usize) % (v.len() - link::PREAMBLE_LEN);
-            v[at] ^= 1 << (rng.next_u64() % 8);
-            ("bad_crc", v)
-        }
-        3 => {
-            let json = br#"{"t":"frame","seq":}"#;
-            let mut v = link::SYNC.to_vec();
-            v.extend((json.len() as u16).to_le_bytes());
-            v.extend_from_slice(json);
-            let crc = epssn::crc32::crc32(json);
-            v.extend(crc.to_le_bytes());
-            ("bad_json", v)
-        }
-        4 => {
-            let mut h = frame_header(s);
-            h.len = Some(link::MAX_PAYLOAD_LEN as u32 + 1 + (rng.next_u64() % 1000) as u32);
-            ("oversized", raw_bytes(&h, &[]))
-        }
-        5 => {
-            *seq -= 1;
-            (
-                "out_of_order",
-                msg_bytes(&Message::StatusRequest { seq: last }),
-            )
-        }
-        6 => {
-            let mut h = frame_header(s);
-            h.r = Some(2 * config::INPUT_RANGE_BINS as u32);
-            ("wrong_geometry", raw_bytes(&h, &[]))
-        }
-        _ => {
-            let mut h = raw_header_unknown(s);
-            h.len = None;
-            ("unknown_type", raw_bytes(&h, &[]))
-        }
-    }
-}
-
-fn raw_header_unknown(seq: u32) -> Header<'static> {
-    Header {
-        t: "reboot",
-        seq,
-        ..Header::default()
-    }
-}
-
-fn code_name(code: u16) -> String {
-    ErrorCode::from_code(code).map_or_else(|| format!("code {code}"), |c| format!("{c:?}"))
-}
-
-fn fuzz(
-    device: &mut Device,
-    n: usize,
-    seed: u64,
-    seq: &mut u32,
-    image: &[u8],
-) -> Result<FuzzReport> {
-    let mut rng = Rng(seed);
-    let mut report = FuzzReport::default();
-    for _ in 0..n {
-        let last = *seq;
-        let (what, bytes) = malformed(&mut rng, seq, last, image);
-        *report.sent.entry(what.to_string()).or_default() += 1;
-        device.send(&bytes)?;
-        *seq += 1;
-        device.send_msg(&Message::StatusRequest { seq: *seq })?;
-        report.status_requests += 1;
-        let mut errors = 0;
-        loop {
-            match device.reply()? {
-                Reply::Status(_) => {
-                    report.status_replies += 1;
-                    break;
-                }
-                Reply::Error { code, .. } => {
-                    errors += 1;
-                    *report.error_replies.entry(code_name(code)).or_default() += 1;
-                }
-                other => bail!("fuzz: unexpected reply {other:?}"),
-            }
-        }
-        if errors == 0 {
-            report.unanswered += 1;
-        }
-    }
-    Ok(report)
 }
 
 /// What streaming frames gave.
@@ -837,15 +427,15 @@ fn soak(
     n: usize,
     seed: u64,
     frames: &[HostFrame],
-) -> Result<(crate::faults::FaultReport, SoakReport)> {
+) -> Result<(FaultReport, SoakReport)> {
     let start = Instant::now();
     let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
-    let mut total: Option<crate::faults::FaultReport> = None;
+    let mut total: Option<FaultReport> = None;
     let mut s = SoakReport::default();
     let mut pairs_ok = true;
     while s.messages < n {
         let block_seed = seed.wrapping_add(s.blocks as u64);
-        let (report, _) = crate::faults::campaign(device, 1, block_seed, &frames[0].image)?;
+        let (report, _) = campaign(device, 1, block_seed, &frames[0].image)?;
         s.messages += report.messages;
         match &mut total {
             None => total = Some(report),
@@ -875,19 +465,10 @@ fn soak(
     Ok((total, s))
 }
 
-/// Runs the SIL and returns the report.
-pub fn sil(args: &SilArgs) -> Result<SilReport> {
-    let recording = args
-        .recording
-        .clone()
-        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
-    let blob = firmware_blob()?;
-    let frames = prepare_frames(&recording, args.frames, &blob)?;
-    if frames.is_empty() {
-        bail!("{}: no frames", recording.display());
-    }
-    let timeout = Duration::from_secs(args.timeout);
-    let (elf, sizes, mut device) = match &args.serial {
+/// The firmware ELF (built unless named), its flash and static RAM, and the device running
+/// it: QEMU, or the board on `--serial`.
+fn open_device(args: &SilArgs, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
+    Ok(match &args.serial {
         None => {
             let elf = match &args.firmware {
                 Some(p) => p.clone(),
@@ -904,7 +485,92 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
             let sizes = elf_sizes(&elf).unwrap_or((0, 0));
             (elf, sizes, Device::serial(port, args.baud, timeout)?)
         }
+    })
+}
+
+/// What the fault campaign or the soak gave.
+struct AfterFaults {
+    /// The campaign's table (the soak's blocks summed).
+    faults: Option<FaultReport>,
+    /// The frames streamed after the faults: all bit-exact, and how many depth maps.
+    after: Option<(bool, usize)>,
+    soak: Option<SoakReport>,
+}
+
+/// `--soak N`, else `--faults N` followed by the first frames again; `seq` is the session's
+/// last sequence number, which the campaign's closing hello restarts.
+fn faults_and_soak(
+    args: &SilArgs,
+    device: &mut Device,
+    frames: &[HostFrame],
+    seq: &mut u32,
+) -> Result<AfterFaults> {
+    Ok(if args.soak > 0 {
+        let (report, s) = soak(device, args.soak, args.seed, frames)?;
+        let ok = s.mismatched_values == 0
+            && s.depth_maps == s.expected_depth_maps
+            && s.expected_depth_maps > 0;
+        let maps = s.depth_maps;
+        AfterFaults {
+            faults: Some(report),
+            after: Some((ok, maps)),
+            soak: Some(s),
+        }
+    } else if args.faults > 0 {
+        let (report, _) = campaign(device, args.faults, args.seed, &frames[0].image)?;
+        // The campaign ended with a hello (seq 0, cache cleared): the frames again, with the
+        // same seqs as the first time, so the same pairs and depth maps are expected.
+        let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
+        *seq = 0;
+        let s = stream(device, again, seq)?;
+        let expected = again.iter().filter(|f| f.expected.is_some()).count();
+        let ok = s.pairs_ok && s.mismatched == 0 && s.depth_maps == expected && expected > 0;
+        AfterFaults {
+            faults: Some(report),
+            after: Some((ok, s.depth_maps)),
+            soak: None,
+        }
+    } else {
+        AfterFaults {
+            faults: None,
+            after: None,
+            soak: None,
+        }
+    })
+}
+
+/// The device's final status counters, then a shutdown: whether it was acknowledged and
+/// QEMU exited cleanly.
+fn close(device: &mut Device, seq: &mut u32) -> Result<(link::Status, bool, bool)> {
+    *seq += 1;
+    device.send_msg(&Message::StatusRequest { seq: *seq })?;
+    let status = loop {
+        match device.reply()? {
+            Reply::Status(s) => break s,
+            Reply::Error { .. } => continue,
+            other => bail!("status request: unexpected reply {other:?}"),
+        }
     };
+    *seq += 1;
+    device.send_msg(&Message::Shutdown { seq: *seq })?;
+    let shutdown_ok = matches!(device.reply()?, Reply::Status(_));
+    let exited = device.wait_exit();
+    Ok((status, shutdown_ok, exited))
+}
+
+/// Runs the SIL and returns the report.
+pub fn sil(args: &SilArgs) -> Result<SilReport> {
+    let recording = args
+        .recording
+        .clone()
+        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
+    let blob = firmware_blob()?;
+    let frames = prepare_frames(&recording, args.frames, &blob)?;
+    if frames.is_empty() {
+        bail!("{}: no frames", recording.display());
+    }
+    let timeout = Duration::from_secs(args.timeout);
+    let (elf, sizes, mut device) = open_device(args, timeout)?;
     let (flash, static_ram) = sizes;
 
     let mut seq = 0u32;
@@ -929,43 +595,13 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         None
     };
     let faults_start = Instant::now();
-    let mut soak_report = None;
-    let (faults, after) = if args.soak > 0 {
-        let (report, s) = soak(&mut device, args.soak, args.seed, &frames)?;
-        let ok = s.mismatched_values == 0
-            && s.depth_maps == s.expected_depth_maps
-            && s.expected_depth_maps > 0;
-        let maps = s.depth_maps;
-        soak_report = Some(s);
-        (Some(report), Some((ok, maps)))
-    } else if args.faults > 0 {
-        let (report, _) =
-            crate::faults::campaign(&mut device, args.faults, args.seed, &frames[0].image)?;
-        // The campaign ended with a hello (seq 0, cache cleared): the frames again, with the
-        // same seqs as the first time, so the same pairs and depth maps are expected.
-        let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
-        seq = 0;
-        let s = stream(&mut device, again, &mut seq)?;
-        let expected = again.iter().filter(|f| f.expected.is_some()).count();
-        let ok = s.pairs_ok && s.mismatched == 0 && s.depth_maps == expected && expected > 0;
-        (Some(report), Some((ok, s.depth_maps)))
-    } else {
-        (None, None)
-    };
+    let AfterFaults {
+        faults,
+        after,
+        soak: soak_report,
+    } = faults_and_soak(args, &mut device, &frames, &mut seq)?;
     let faults_seconds = faults_start.elapsed().as_secs_f64();
-    seq += 1;
-    device.send_msg(&Message::StatusRequest { seq })?;
-    let status = loop {
-        match device.reply()? {
-            Reply::Status(s) => break s,
-            Reply::Error { .. } => continue,
-            other => bail!("status request: unexpected reply {other:?}"),
-        }
-    };
-    seq += 1;
-    device.send_msg(&Message::Shutdown { seq })?;
-    let shutdown_ok = matches!(device.reply()?, Reply::Status(_));
-    let exited = device.wait_exit();
+    let (status, shutdown_ok, exited) = close(&mut device, &mut seq)?;
     let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
     let mean = if instructions.is_empty() {
         0
@@ -1040,110 +676,122 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
     if args.json {
         writeln!(out, "{}", serde_json::to_string_pretty(&r)?)?;
     } else {
-        writeln!(out, "recording: {}", r.recording)?;
-        writeln!(out, "firmware: {} (on {})", r.firmware, r.device)?;
+        write_text(&r, out)?;
+    }
+    verdict(&r, args)
+}
+
+/// The report as text, for a person.
+fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
+    writeln!(out, "recording: {}", r.recording)?;
+    writeln!(out, "firmware: {} (on {})", r.firmware, r.device)?;
+    writeln!(
+        out,
+        "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
+        r.frames, r.depth_maps, r.expected_depth_maps, r.bit_exact, r.mismatched_values
+    )?;
+    writeln!(out, "pairs (reference, sources): {:?}", r.pairs)?;
+    writeln!(
+        out,
+        "pairs the pose gate rejected (reference, source, reason): {:?}; same as the host: {}",
+        r.rejected_pairs, r.rejections_agree
+    )?;
+    writeln!(
+        out,
+        "{} per depth map (features of the new frame + depth map): {} (each: {:?})",
+        r.cost_unit, r.instructions_per_depth_map, r.instructions
+    )?;
+    writeln!(
+        out,
+        "flash: {} bytes; RAM: {} bytes = {} static + {} stack high-water",
+        r.flash_bytes, r.ram_bytes, r.static_ram_bytes, r.stack_high_water_bytes
+    )?;
+    writeln!(
+        out,
+        "device counters: {} frames, {} depth maps, {} errors",
+        r.device_frames, r.device_depth_maps, r.device_errors
+    )?;
+    if let Some(f) = &r.fuzz {
         writeln!(
             out,
-            "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
-            r.frames, r.depth_maps, r.expected_depth_maps, r.bit_exact, r.mismatched_values
-        )?;
-        writeln!(out, "pairs (reference, sources): {:?}", r.pairs)?;
-        writeln!(
-            out,
-            "pairs the pose gate rejected (reference, source, reason): {:?}; same as the host: {}",
-            r.rejected_pairs, r.rejections_agree
-        )?;
-        writeln!(
-            out,
-            "{} per depth map (features of the new frame + depth map): {} (each: {:?})",
-            r.cost_unit, r.instructions_per_depth_map, r.instructions
-        )?;
-        writeln!(
-            out,
-            "flash: {} bytes; RAM: {} bytes = {} static + {} stack high-water",
-            r.flash_bytes, r.ram_bytes, r.static_ram_bytes, r.stack_high_water_bytes
-        )?;
-        writeln!(
-            out,
-            "device counters: {} frames, {} depth maps, {} errors",
-            r.device_frames, r.device_depth_maps, r.device_errors
-        )?;
-        if let Some(f) = &r.fuzz {
-            writeln!(
-                out,
-                "fuzz: sent {:?}; error replies {:?}; status {}/{} answered; {} malformed \
-                 messages without an error reply",
-                f.sent, f.error_replies, f.status_replies, f.status_requests, f.unanswered
-            )?;
-        }
-        if let Some(f) = &r.faults {
-            writeln!(
-                out,
-                "fault campaign (seed {}, {} rounds, {:.1} s): {} faults, {} failed; stack \
-                 high-water {} -> {} bytes",
-                f.seed,
-                f.rounds,
-                r.faults_seconds,
-                f.faults,
-                f.failed,
-                f.stack_high_water_before,
-                f.stack_high_water_after
-            )?;
-            writeln!(
-                out,
-                "  {:<22} {:>5} {:>9} {:>9}  expected code",
-                "class", "sent", "answered", "recovered"
-            )?;
-            for (class, c) in &f.classes {
-                writeln!(
-                    out,
-                    "  {class:<22} {:>5} {:>9} {:>9}  {}",
-                    c.sent,
-                    c.answered_expected,
-                    c.recovered,
-                    c.expected_code.join("/")
-                )?;
-                for failure in &c.failures {
-                    writeln!(out, "    failed: {failure}")?;
-                }
-            }
-            writeln!(
-                out,
-                "after the faults: {} depth maps, bit-exact: {}",
-                r.after_faults_depth_maps, r.after_faults_bit_exact
-            )?;
-            if let Some(s) = &r.soak {
-                writeln!(
-                    out,
-                    "soak: {} messages in {} blocks ({:.1} s), {} valid frames, {} of {} depth \
-                     maps, {} values differ; stack high-water {} -> {} bytes (unchanged: {})",
-                    s.messages,
-                    s.blocks,
-                    s.seconds,
-                    s.valid_frames,
-                    s.depth_maps,
-                    s.expected_depth_maps,
-                    s.mismatched_values,
-                    s.stack_high_water_before,
-                    s.stack_high_water_after,
-                    s.stack_unchanged
-                )?;
-            }
-        }
-        writeln!(out, "alive: {}", r.alive)?;
-        writeln!(
-            out,
-            "budgets: {} instructions per depth map, RAM {} bytes, flash {} bytes: {}",
-            r.budgets.instructions_per_depth_map,
-            r.budgets.ram_bytes,
-            r.budgets.flash_bytes,
-            if r.budget_violations.is_empty() {
-                "within".to_string()
-            } else {
-                r.budget_violations.join("; ")
-            }
+            "fuzz: sent {:?}; error replies {:?}; status {}/{} answered; {} malformed \
+             messages without an error reply",
+            f.sent, f.error_replies, f.status_replies, f.status_requests, f.unanswered
         )?;
     }
+    if let Some(f) = &r.faults {
+        writeln!(
+            out,
+            "fault campaign (seed {}, {} rounds, {:.1} s): {} faults, {} failed; stack \
+             high-water {} -> {} bytes",
+            f.seed,
+            f.rounds,
+            r.faults_seconds,
+            f.faults,
+            f.failed,
+            f.stack_high_water_before,
+            f.stack_high_water_after
+        )?;
+        writeln!(
+            out,
+            "  {:<22} {:>5} {:>9} {:>9}  expected code",
+            "class", "sent", "answered", "recovered"
+        )?;
+        for (class, c) in &f.classes {
+            writeln!(
+                out,
+                "  {class:<22} {:>5} {:>9} {:>9}  {}",
+                c.sent,
+                c.answered_expected,
+                c.recovered,
+                c.expected_code.join("/")
+            )?;
+            for failure in &c.failures {
+                writeln!(out, "    failed: {failure}")?;
+            }
+        }
+        writeln!(
+            out,
+            "after the faults: {} depth maps, bit-exact: {}",
+            r.after_faults_depth_maps, r.after_faults_bit_exact
+        )?;
+        if let Some(s) = &r.soak {
+            writeln!(
+                out,
+                "soak: {} messages in {} blocks ({:.1} s), {} valid frames, {} of {} depth \
+                 maps, {} values differ; stack high-water {} -> {} bytes (unchanged: {})",
+                s.messages,
+                s.blocks,
+                s.seconds,
+                s.valid_frames,
+                s.depth_maps,
+                s.expected_depth_maps,
+                s.mismatched_values,
+                s.stack_high_water_before,
+                s.stack_high_water_after,
+                s.stack_unchanged
+            )?;
+        }
+    }
+    writeln!(out, "alive: {}", r.alive)?;
+    writeln!(
+        out,
+        "budgets: {} instructions per depth map, RAM {} bytes, flash {} bytes: {}",
+        r.budgets.instructions_per_depth_map,
+        r.budgets.ram_bytes,
+        r.budgets.flash_bytes,
+        if r.budget_violations.is_empty() {
+            "within".to_string()
+        } else {
+            r.budget_violations.join("; ")
+        }
+    )?;
+    Ok(())
+}
+
+/// Fails with the first thing the report says went wrong: the printed report comes first, so
+/// the figures are on screen when the run fails.
+fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
     if !r.bit_exact {
         bail!("SIL: depth maps are not bit-exact with the host library");
     }
