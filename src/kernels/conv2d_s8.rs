@@ -6,6 +6,7 @@
 //!
 //! MACs: `O · OH · OW · I · kh · kw` (padded taps skipped, so slightly fewer at the border).
 
+use super::line::{conv_fits, im2col_engine, line_shape, run_conv, COL_LEN};
 use super::{
     check_conv, check_conv_shape, finish, CheckedParams, ConvParams, ConvShape, KernelError,
     LineScratch,
@@ -67,10 +68,10 @@ pub fn conv2d_s8_plain(
 
 /// Optimised: the line-buffer engine of the `line` module when the layer fits its stack
 /// buffers (all EPSSN layers do). Otherwise, when the taps of one output (`I · kh · kw`) fit
-/// [`super::conv3d_s8::COL_LEN`], the im2col engine of [`super::conv3d_s8::conv3d_s8`]
-/// (a 2D layer is a 3D one with a trivial third axis, same memory layout): two output
-/// positions per dot product over packed i16 columns. Otherwise
-/// [`conv2d_s8_rows`].
+/// [`super::conv3d_s8::COL_LEN`], the im2col engine (of the `line` module, which
+/// [`super::conv3d_s8::conv3d_s8`] uses too; a 2D layer is a 3D one with a trivial third
+/// axis, same memory layout): two output positions per dot product over packed i16 columns.
+/// Otherwise [`conv2d_s8_rows`].
 pub fn conv2d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -101,19 +102,6 @@ pub fn conv2d_s8_checked(
     Ok(())
 }
 
-/// A 2D shape as the line engine runs it: axes [H, W, 1] as [1, H, W], so that the engine's
-/// rows run along W (same memory layout).
-pub(crate) const fn line_shape(shape: &ConvShape) -> ConvShape {
-    ConvShape {
-        kernel: [1, shape.kernel[0], shape.kernel[1]],
-        stride: [1, shape.stride[0], shape.stride[1]],
-        padding: [0, shape.padding[0], shape.padding[1]],
-        in_size: [1, shape.in_size[0], shape.in_size[1]],
-        out_size: [1, shape.out_size[0], shape.out_size[1]],
-        ..*shape
-    }
-}
-
 /// The optimised engines on a validated shape and verified parameters.
 fn engine(
     shape: &ConvShape,
@@ -124,11 +112,11 @@ fn engine(
 ) {
     let (params, bound) = (checked.params(), checked.bound());
     let s3 = line_shape(shape);
-    if super::line::conv_fits(&s3) {
-        super::line::run_conv(&s3, input, params, bound, output, scratch);
-    } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= super::conv3d_s8::COL_LEN {
+    if conv_fits(&s3) {
+        run_conv(&s3, input, params, bound, output, scratch);
+    } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= COL_LEN {
         // Axes [H, W, 1] used as [D, H, W]: rows of length 1 in the gather, same sums.
-        super::conv3d_s8::im2col_engine(shape, input, params, output);
+        im2col_engine(shape, input, params, output);
     } else {
         rows(shape, input, params, output);
     }

@@ -485,6 +485,15 @@ pub(crate) fn finish(t: i32, relu: bool, u: Option<i32>) -> i8 {
     y.clamp(-128, 127) as i8
 }
 
+/// Valid taps `lo..hi` of output position `out` on one axis: `0 <= out·s + k − p < n`.
+#[inline(always)]
+pub(crate) fn tap_range(out: usize, s: usize, p: usize, k: usize, n: usize) -> (usize, usize) {
+    (
+        p.saturating_sub(out * s),
+        k.min((n + p).saturating_sub(out * s)),
+    )
+}
+
 pub(crate) fn expect(operand: Operand, expected: usize, actual: usize) -> Result<(), KernelError> {
     if expected == actual {
         Ok(())
