@@ -40,16 +40,20 @@ for d in fuzz/regressions/*/; do
     [ -d "$d" ] && cp "$d"* "$corpus/$(basename "$d")/"
 done
 
+# Every target built once, in one cargo run (its own target folder, fuzz/target: sanitizer
+# builds must not replace the host ones); each is then run as the libFuzzer binary it is.
+(cd fuzz && env -u CARGO_TARGET_DIR cargo +nightly fuzz build 2>&1 | tail -3)
+bin_dir=fuzz/target/x86_64-unknown-linux-gnu/release
 for t in "${targets[@]}"; do
     printf '\n==> fuzz %s for %s s\n' "$t" "$seconds"
     log=$(mktemp)
-    # Its own target folder (fuzz/target): sanitizer builds must not replace the host ones.
+    mkdir -p "fuzz/artifacts/$t"
     # -max_len above the largest seed (the 23.6 KiB shipped blob, a 24.9 KiB message stream):
     # libFuzzer cuts longer inputs, and a cut blob never passes its length and CRC checks.
-    if ! (cd fuzz && env -u CARGO_TARGET_DIR cargo +nightly fuzz run "$t" -- -max_total_time="$seconds" \
-        -rss_limit_mb=2048 -max_len=32768) >"$log" 2>&1; then
+    if ! "$bin_dir/$t" -artifact_prefix="fuzz/artifacts/$t/" -max_total_time="$seconds" \
+        -rss_limit_mb=2048 -max_len=32768 "$corpus/$t" >"$log" 2>&1; then
         tail -40 "$log"
-        echo "fuzz target $t failed (crash input in fuzz/artifacts/$t/)"
+        echo "fuzz target $t failed (crash input in fuzz/artifacts/$t/; replay: cargo +nightly fuzz run $t <file>)"
         exit 1
     fi
     # The final status line: executions (#N) and edges covered (cov).

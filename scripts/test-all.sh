@@ -8,6 +8,9 @@ cd "$(dirname "$0")/.."
 step() { printf '\n==> %s\n' "$*"; }
 
 step "toolchain and tools"
+# rust-toolchain.toml names the toolchain, its components and the Cortex-M7 target; rustup
+# installs whatever of them is missing.
+rustup show active-toolchain
 rustup target list --installed | grep -qx thumbv7em-none-eabihf || rustup target add thumbv7em-none-eabihf
 rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
 rustup component list --installed | grep -q '^clippy' || rustup component add clippy
@@ -24,8 +27,13 @@ step "format"
 cargo fmt --all -- --check
 (cd firmware && cargo fmt -- --check)
 
+step "supply chain: licences, bans, sources and, when the RustSec database is reachable, advisories (cargo-deny, all five workspaces)"
+bash scripts/deny.sh
+
 step "clippy (host workspace, all targets, -D warnings)"
 cargo clippy --workspace --all-targets -- -D warnings
+# host-sim's `train` feature (the `train` command, burn): the code only that build compiles.
+cargo clippy -p host-sim --features train --all-targets -- -D warnings
 
 step "no_std library build for thumbv7em-none-eabihf (with and without defmt)"
 cargo build -p epssn --lib --target thumbv7em-none-eabihf
@@ -56,6 +64,8 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 
 step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
+# `host-sim train` through the binary: only the `train` feature builds it.
+cargo test -p host-sim --features train --test cli
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.

@@ -31,7 +31,7 @@ pixels=${SEARCH_PIXELS:-all}
 views=(${VIEWS:+--views "$VIEWS"})
 sim_params=(${SIM_PARAMS:+--params "$SIM_PARAMS"})
 val_n=${VAL_PER_SCENE:-100}
-hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --features train --})
 # glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
 # them (measured: 6x fewer page faults, 10 % faster steps) costs nothing else.
 export GLIBC_TUNABLES=${GLIBC_TUNABLES:-glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824:glibc.malloc.top_pad=268435456}

@@ -8,7 +8,7 @@
 set -euo pipefail
 scene=$1 train_n=$2 test_n=$3 epochs=$4 test_views=${5:-2} root=${6:-out/epssn-data}
 data=$root/$scene
-hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --features train --})
 cd "$(dirname "$0")/.."
 [ -d "$data/train/$(printf %06d $((train_n - 1)))" ] ||
   "${hs[@]}" simulate --scene "$scene" --split train --pairs "$train_n" --seed 1 --out "$data" --no-preview

@@ -33,10 +33,12 @@ enum Command {
     Sil(epssn_sil::sil::SilArgs),
     /// Per-layer MACs and QEMU Cortex-M7 instructions of the firmware.
     Bench(epssn_sil::bench::BenchArgs),
-    /// Train the float EPSSN on simulated data.
+    /// Train the float EPSSN on simulated data (build with `--features train`).
+    #[cfg(feature = "train")]
     Train(epssn_train::cli::TrainArgs),
-    /// Evaluate float weights on a simulated test folder (CD and MAE as in the paper).
-    Eval(epssn_train::cli::EvalArgs),
+    /// Evaluate weights on a simulated test folder: the f64 reference network and, with
+    /// `--int8`, the int8 library (MAE and CD as in the paper).
+    Eval(epssn_eval::eval::EvalArgs),
 }
 
 fn main() -> ExitCode {
@@ -52,8 +54,9 @@ fn main() -> ExitCode {
         Command::Metrics(args) => epssn_sim::metrics::run(&args),
         Command::Sil(args) => epssn_sil::sil::run(&args, &mut stdout.lock()),
         Command::Bench(args) => epssn_sil::bench::run(&args, &mut stdout.lock()),
+        #[cfg(feature = "train")]
         Command::Train(args) => epssn_train::cli::train(&args),
-        Command::Eval(args) => epssn_train::cli::eval(&args),
+        Command::Eval(args) => epssn_eval::eval::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -22,7 +22,7 @@ use crate::figure;
 use epssn_aris::aris::ArisReader;
 use epssn_aris::{npy, polar};
 use epssn_reference::{floatref, reference_model, weights};
-use epssn_sim::dataset::DEMO_DIR;
+use epssn_sim::dataset::demo_dir;
 use epssn_sim::metrics::{self, Accuracy, Metrics};
 use epssn_sim::preview;
 
@@ -297,299 +297,56 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     let recording = args
         .recording
         .clone()
-        .unwrap_or_else(|| Path::new(DEMO_DIR).join("recording.aris"));
+        .unwrap_or_else(|| demo_dir().join("recording.aris"));
     let gt_dir = args.gt.clone().or_else(|| {
         args.recording
             .is_none()
             // The demo's ground truth on the build's output grid (`gt/` for EPSSN-S).
             .then(|| {
-                Path::new(DEMO_DIR).join(epssn_spec::load::per_spec_name(
+                demo_dir().join(epssn_spec::load::per_spec_name(
                     "gt",
                     epssn::config::SPEC_FILE_NAME,
                 ))
             })
     });
-    let reader =
-        ArisReader::open(&recording).with_context(|| format!("opening {}", recording.display()))?;
+    let reader = open_recording(&recording, if args.pairs.is_empty() { views } else { 2 })?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
-    if let Some(why) = polar::geometry_mismatch(&reader)? {
-        bail!(
-            "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
-             wrong, so nothing was computed.",
-            recording.display(),
-            config::SPEC_NAME
-        );
-    }
-    // Too few frames for one depth map: the reader's warnings (truncation, FrameCount) say why.
-    let needed = if args.pairs.is_empty() { views } else { 2 };
-    if reader.frame_count() < needed {
-        bail!(
-            "{} holds {} complete frame(s), a depth map needs {needed}{}",
-            recording.display(),
-            reader.frame_count(),
-            if warnings.is_empty() {
-                String::new()
-            } else {
-                format!(": {}", warnings.join("; "))
-            }
-        );
-    }
-    let mut rolls: Vec<Option<f64>> = (0..reader.frame_count())
-        .map(|i| frame_roll(&reader, i))
-        .collect();
-    let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
-        .map(|i| frame_attitude(&reader, i))
-        .collect();
-    let trained_pings = weights::trained_pings_per_view(&weights_dir);
-    let pings_per_view = args.pings_per_view.or(trained_pings).unwrap_or(1);
-    ensure!(
-        (1..=u32::from(ping_average::MAX_PINGS)).contains(&pings_per_view),
-        "--pings-per-view must be 1..={}",
-        ping_average::MAX_PINGS
-    );
-    if let Some(m) = trained_pings {
-        if m != pings_per_view {
-            warnings.push(format!(
-                "the weights were trained on {m} ping(s) per view and this run averages \
-                 {pings_per_view}: expect them to read worse than their accuracy"
-            ));
-        }
-    }
-    // Each burst of pings is one view, named by its first frame: the other frames lose their
-    // roll and attitude so pairing sees only the bursts.
-    let bursts = ping_bursts(&rolls, pings_per_view as usize);
-    // The frames a view averages: its burst, or the frame alone (`--pair`, no roll).
-    let pings_of = |f: usize| bursts.get(&f).cloned().unwrap_or_else(|| vec![f]);
-    if pings_per_view > 1 {
-        ensure!(
-            args.pairs.is_empty(),
-            "--pair pairs single frames; with --pings-per-view {pings_per_view} pairing is by roll"
-        );
-        let in_bursts: usize = bursts.values().map(Vec::len).sum();
-        let skipped = reader.frame_count() - in_bursts;
-        if skipped > 0 {
-            warnings.push(format!(
-                "{skipped} frame(s) not in a run of {pings_per_view} pings at one roll were skipped"
-            ));
-        }
-        ensure!(
-            !bursts.is_empty(),
-            "{} holds no run of {pings_per_view} consecutive frames at one roll (±{} °): \
-             nothing to average (give --pings-per-view 1 for single pings)",
-            recording.display(),
-            config::PAIR_TOLERANCE_DEG
-        );
-        for i in 0..rolls.len() {
-            if !bursts.contains_key(&i) {
-                rolls[i] = None;
-                attitudes[i] = None;
-            }
-        }
-    }
-    let mut candidates = Vec::new();
-    let groups: Vec<Vec<usize>> = if args.pairs.is_empty() {
-        candidates = pair_by_roll(&rolls, views)
-            .iter()
-            .map(|g| gate(g, &rolls, &attitudes))
-            .collect();
-        let rejected = candidates.iter().filter(|c| !c.accepted).count();
-        if rejected > 0 {
-            warnings.push(format!(
-                "{rejected} candidate pair(s) rejected by the pose gate (see candidates)"
-            ));
-        }
-        if candidates.iter().any(|c| c.reason == "roll_only") {
-            warnings.push(
-                "frames without attitude paired by the roll-only rule (reason roll_only)".into(),
-            );
-        }
-        candidates
-            .iter()
-            .filter(|c| c.accepted)
-            .map(|c| c.frames.clone())
-            .collect()
+    let frames = FrameViews::of(args, &reader, &weights_dir, &recording, &mut warnings)?;
+    let (groups, candidates) = if args.pairs.is_empty() {
+        pair_by_pose(&frames, views, &mut warnings)
     } else {
-        ensure!(
-            views == 2,
-            "--pair gives two-view pairs, and these weights take {views} views"
-        );
-        warnings.push(format!(
-            "pairs given by index: the roll between them is assumed to be the {} ° baseline",
-            config::ROLL_STEP_DEG
-        ));
-        for &(a, b) in &args.pairs {
-            ensure!(
-                a < reader.frame_count() && b < reader.frame_count(),
-                "pair {a}:{b}: the recording has {} frames",
-                reader.frame_count()
-            );
-        }
-        args.pairs.iter().map(|&(a, b)| vec![a, b]).collect()
+        (
+            given_pairs(args, &reader, views, &mut warnings)?,
+            Vec::new(),
+        )
     };
     if groups.is_empty() {
-        bail!(
-            "no frames of {} pair at the {} ° roll baseline (±{} °, residual ≤ {} °){}; give \
-             --pair REF:SRC for recordings without rotator roll",
-            recording.display(),
-            config::ROLL_STEP_DEG,
-            config::PAIR_TOLERANCE_DEG,
-            config::PAIR_RESIDUAL_TOLERANCE_DEG,
-            if candidates.is_empty() {
-                String::new()
-            } else {
-                format!(
-                    ": the pose gate rejected all {} candidates ({})",
-                    candidates.len(),
-                    candidates
-                        .iter()
-                        .map(|c| format!(
-                            "{:?} {} roll {:.3}° residual {}",
-                            c.frames,
-                            c.reason,
-                            c.roll_deg,
-                            c.residual_deg
-                                .map_or_else(|| "n/a".into(), |r| format!("{r:.3}°"))
-                        ))
-                        .collect::<Vec<_>>()
-                        .join("; ")
-                )
-            }
-        );
+        bail!(no_pairs_message(&recording, &candidates));
     }
     std::fs::create_dir_all(&args.out)?;
+    let images = polar_images(args, &reader, &frames, &groups)?;
 
-    // Each frame's polar image is computed once; the library computes each group's features
-    // and depth in one call and hands the features back for the bit-exactness check.
+    // The library computes each group's features and depth in one call and hands the
+    // features back for the bit-exactness check.
     let mut ws = Box::new(Workspace::new());
-    let mut images: BTreeMap<usize, Vec<u8>> = BTreeMap::new();
-    let table = ping_average::IntensityTable::new(args.ping_dynamic_range_db).map_err(|_| {
-        anyhow::anyhow!(
-            "--ping-dynamic-range-db {} is not within (0, 200]",
-            args.ping_dynamic_range_db
-        )
-    })?;
-    for &f in groups.iter().flatten() {
-        if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
-            e.insert(polar::frame_to_polar(&polar::average_pings(
-                &reader,
-                &pings_of(f),
-                &table,
-            )?)?);
-        }
-    }
-
     let mut details = Vec::new();
     for group in &groups {
         let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
-        let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
-        let mut depth_q = vec![U16F16::ZERO; config::DEPTH_LEN];
-        model
-            .depth(&views, &mut features, &mut ws, &mut depth_q)
-            .map_err(|e| anyhow::anyhow!("depth of frames {group:?}: {e:?}"))?;
-        let reference = reference_model::run(&bundle.blob, &views)?;
-        let bits: Vec<u32> = depth_q.iter().map(|d| d.to_bits()).collect();
-        let bit_exact = bits == reference.depth
-            && features
-                .chunks_exact(config::FEATURE_LEN)
-                .zip(&reference.features)
-                .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
-        let depth_int8: Vec<f32> = depth_q.iter().map(|d| d.to_num::<f32>()).collect();
-        let depth_float = floatref::run(&bundle.float, &views)?.depth;
-        let int8_vs_float_mae = 1000.0
-            * depth_int8
-                .iter()
-                .zip(&depth_float)
-                .map(|(a, b)| (a - b).abs() as f64)
-                .sum::<f64>()
-            / config::DEPTH_LEN as f64;
+        let maps = depth_maps(&model, &bundle, &views, &mut ws)
+            .with_context(|| format!("depth of frames {group:?}"))?;
         let gt = match &gt_dir {
             Some(dir) => load_gt(dir, group[0])?,
             None => None,
         };
-        let (float_m, int8_m) = match &gt {
-            Some((d, m)) => (
-                Some(metrics::evaluate(&depth_float, d, m)?),
-                Some(metrics::evaluate(&depth_int8, d, m)?),
-            ),
-            None => (None, None),
-        };
         let name = format!("frame{:04}", group[0]);
-        // int8 | float | ground truth (labels clamped, as the metric reads them) | per-pixel
-        // |int8 − truth|; without ground truth the last panel is |int8 − float|.
-        let truth = gt.as_ref().map(|(d, _)| metrics::clamp_labels(d));
-        let error: Vec<f32> = match &truth {
-            Some(t) => depth_int8
-                .iter()
-                .zip(t)
-                .map(|(a, b)| (a - b).abs())
-                .collect(),
-            None => depth_int8
-                .iter()
-                .zip(&depth_float)
-                .map(|(a, b)| (a - b).abs())
-                .collect(),
-        };
-        let mut panels = vec![
-            figure::Panel::Depth {
-                title: "int8",
-                depth: &depth_int8,
-            },
-            figure::Panel::Depth {
-                title: "float",
-                depth: &depth_float,
-            },
-        ];
-        if let Some(t) = &truth {
-            panels.push(figure::Panel::Depth {
-                title: "ground truth",
-                depth: t,
-            });
-        }
-        panels.push(figure::Panel::Error {
-            title: if truth.is_some() {
-                "|int8 - truth|"
-            } else {
-                "|int8 - float|"
-            },
-            error: &error,
-            max_mm: 200.0,
-        });
-        preview::save_png(
-            &figure::depth_figure(&panels),
-            &args.out.join(format!("{name}_depth.png")),
-        )?;
-        let keep: Vec<bool> = match &gt {
-            Some((_, m)) => m.clone(),
-            None => depth_int8
-                .iter()
-                .map(|&d| (d as f64) < config::R_MAX_M - 1e-3)
-                .collect(),
-        };
-        metrics::write_ply(
-            &args.out.join(format!("{name}_int8.ply")),
-            &metrics::depth_points(&depth_int8, &keep)?,
-            Some([255, 140, 0]),
-        )?;
-        metrics::write_ply(
-            &args.out.join(format!("{name}_float.ply")),
-            &metrics::depth_points(&depth_float, &keep)?,
-            Some([0, 160, 255]),
-        )?;
-        details.push(PairReport {
-            frames: group.clone(),
-            pings: group.iter().map(|&f| pings_of(f)).collect(),
-            rolls_deg: group.iter().map(|&f| rolls[f]).collect(),
-            bit_exact,
-            int8_vs_float_mae,
-            float: float_m,
-            int8: int8_m,
-        });
+        write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
+        details.push(pair_report(group, &frames, &maps, gt.as_ref())?);
     }
     let summary = Summary {
         recording: recording.display().to_string(),
         weights: weights_dir.display().to_string(),
         pairs: details.len(),
-        pings_per_view,
+        pings_per_view: frames.pings_per_view,
         float: Accuracy::of(
             &details
                 .iter()
@@ -620,6 +377,353 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         print_summary(&summary, &bundle.description, &args.out, out)?;
     }
     Ok(())
+}
+
+/// Opens a recording that fits the model and holds at least `needed` frames.
+fn open_recording(recording: &Path, needed: usize) -> Result<ArisReader> {
+    let reader =
+        ArisReader::open(recording).with_context(|| format!("opening {}", recording.display()))?;
+    if let Some(why) = polar::geometry_mismatch(&reader)? {
+        bail!(
+            "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
+             wrong, so nothing was computed.",
+            recording.display(),
+            config::SPEC_NAME
+        );
+    }
+    // Too few frames for one depth map: the reader's warnings (truncation, FrameCount) say why.
+    if reader.frame_count() < needed {
+        let warnings = reader.warnings();
+        bail!(
+            "{} holds {} complete frame(s), a depth map needs {needed}{}",
+            recording.display(),
+            reader.frame_count(),
+            if warnings.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", warnings.join("; "))
+            }
+        );
+    }
+    Ok(reader)
+}
+
+/// Each frame's roll and attitude, and the bursts of pings averaged into one view.
+struct FrameViews {
+    rolls: Vec<Option<f64>>,
+    attitudes: Vec<Option<Attitude>>,
+    bursts: BTreeMap<usize, Vec<usize>>,
+    pings_per_view: u32,
+}
+
+impl FrameViews {
+    fn of(
+        args: &RunArgs,
+        reader: &ArisReader,
+        weights_dir: &Path,
+        recording: &Path,
+        warnings: &mut Vec<String>,
+    ) -> Result<Self> {
+        let mut rolls: Vec<Option<f64>> = (0..reader.frame_count())
+            .map(|i| frame_roll(reader, i))
+            .collect();
+        let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+            .map(|i| frame_attitude(reader, i))
+            .collect();
+        let trained_pings = weights::trained_pings_per_view(weights_dir);
+        let pings_per_view = args.pings_per_view.or(trained_pings).unwrap_or(1);
+        ensure!(
+            (1..=u32::from(ping_average::MAX_PINGS)).contains(&pings_per_view),
+            "--pings-per-view must be 1..={}",
+            ping_average::MAX_PINGS
+        );
+        if let Some(m) = trained_pings {
+            if m != pings_per_view {
+                warnings.push(format!(
+                    "the weights were trained on {m} ping(s) per view and this run averages \
+                     {pings_per_view}: expect them to read worse than their accuracy"
+                ));
+            }
+        }
+        // Each burst of pings is one view, named by its first frame: the other frames lose
+        // their roll and attitude so pairing sees only the bursts.
+        let bursts = ping_bursts(&rolls, pings_per_view as usize);
+        if pings_per_view > 1 {
+            ensure!(
+                args.pairs.is_empty(),
+                "--pair pairs single frames; with --pings-per-view {pings_per_view} pairing is by roll"
+            );
+            let in_bursts: usize = bursts.values().map(Vec::len).sum();
+            let skipped = reader.frame_count() - in_bursts;
+            if skipped > 0 {
+                warnings.push(format!(
+                    "{skipped} frame(s) not in a run of {pings_per_view} pings at one roll were skipped"
+                ));
+            }
+            ensure!(
+                !bursts.is_empty(),
+                "{} holds no run of {pings_per_view} consecutive frames at one roll (±{} °): \
+                 nothing to average (give --pings-per-view 1 for single pings)",
+                recording.display(),
+                config::PAIR_TOLERANCE_DEG
+            );
+            for i in 0..rolls.len() {
+                if !bursts.contains_key(&i) {
+                    rolls[i] = None;
+                    attitudes[i] = None;
+                }
+            }
+        }
+        Ok(FrameViews {
+            rolls,
+            attitudes,
+            bursts,
+            pings_per_view,
+        })
+    }
+
+    /// The frames a view averages: its burst, or the frame alone (`--pair`, no roll).
+    fn pings_of(&self, f: usize) -> Vec<usize> {
+        self.bursts.get(&f).cloned().unwrap_or_else(|| vec![f])
+    }
+}
+
+/// Groups paired by rotator roll and passed by the pose gate, and every candidate's verdict.
+fn pair_by_pose(
+    frames: &FrameViews,
+    views: usize,
+    warnings: &mut Vec<String>,
+) -> (Vec<Vec<usize>>, Vec<CandidateReport>) {
+    let candidates: Vec<CandidateReport> = pair_by_roll(&frames.rolls, views)
+        .iter()
+        .map(|g| gate(g, &frames.rolls, &frames.attitudes))
+        .collect();
+    let rejected = candidates.iter().filter(|c| !c.accepted).count();
+    if rejected > 0 {
+        warnings.push(format!(
+            "{rejected} candidate pair(s) rejected by the pose gate (see candidates)"
+        ));
+    }
+    if candidates.iter().any(|c| c.reason == "roll_only") {
+        warnings
+            .push("frames without attitude paired by the roll-only rule (reason roll_only)".into());
+    }
+    let groups = candidates
+        .iter()
+        .filter(|c| c.accepted)
+        .map(|c| c.frames.clone())
+        .collect();
+    (groups, candidates)
+}
+
+/// The pairs given with `--pair`, checked against the recording.
+fn given_pairs(
+    args: &RunArgs,
+    reader: &ArisReader,
+    views: usize,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Vec<usize>>> {
+    ensure!(
+        views == 2,
+        "--pair gives two-view pairs, and these weights take {views} views"
+    );
+    warnings.push(format!(
+        "pairs given by index: the roll between them is assumed to be the {} ° baseline",
+        config::ROLL_STEP_DEG
+    ));
+    for &(a, b) in &args.pairs {
+        ensure!(
+            a < reader.frame_count() && b < reader.frame_count(),
+            "pair {a}:{b}: the recording has {} frames",
+            reader.frame_count()
+        );
+    }
+    Ok(args.pairs.iter().map(|&(a, b)| vec![a, b]).collect())
+}
+
+/// Why no depth map can be made: the baseline, its tolerances and every rejected candidate.
+fn no_pairs_message(recording: &Path, candidates: &[CandidateReport]) -> String {
+    format!(
+        "no frames of {} pair at the {} ° roll baseline (±{} °, residual ≤ {} °){}; give \
+         --pair REF:SRC for recordings without rotator roll",
+        recording.display(),
+        config::ROLL_STEP_DEG,
+        config::PAIR_TOLERANCE_DEG,
+        config::PAIR_RESIDUAL_TOLERANCE_DEG,
+        if candidates.is_empty() {
+            String::new()
+        } else {
+            format!(
+                ": the pose gate rejected all {} candidates ({})",
+                candidates.len(),
+                candidates
+                    .iter()
+                    .map(|c| format!(
+                        "{:?} {} roll {:.3}° residual {}",
+                        c.frames,
+                        c.reason,
+                        c.roll_deg,
+                        c.residual_deg
+                            .map_or_else(|| "n/a".into(), |r| format!("{r:.3}°"))
+                    ))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            )
+        }
+    )
+}
+
+/// The polar image of every frame the groups use, each computed once (its pings averaged).
+fn polar_images(
+    args: &RunArgs,
+    reader: &ArisReader,
+    frames: &FrameViews,
+    groups: &[Vec<usize>],
+) -> Result<BTreeMap<usize, Vec<u8>>> {
+    let table = ping_average::IntensityTable::new(args.ping_dynamic_range_db).map_err(|_| {
+        anyhow::anyhow!(
+            "--ping-dynamic-range-db {} is not within (0, 200]",
+            args.ping_dynamic_range_db
+        )
+    })?;
+    let mut images = BTreeMap::new();
+    for &f in groups.iter().flatten() {
+        if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
+            let pings = polar::average_pings(reader, &frames.pings_of(f), &table)?;
+            e.insert(polar::frame_to_polar(&pings)?);
+        }
+    }
+    Ok(images)
+}
+
+/// One group's depth maps: the library's int8 map, checked bit for bit against the integer
+/// reference, and the float reference network's.
+struct DepthMaps {
+    int8: Vec<f32>,
+    float: Vec<f32>,
+    bit_exact: bool,
+}
+
+fn depth_maps(
+    model: &Model,
+    bundle: &weights::Bundle,
+    views: &[&[u8]],
+    ws: &mut Workspace,
+) -> Result<DepthMaps> {
+    let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
+    let mut depth_q = vec![U16F16::ZERO; config::DEPTH_LEN];
+    model
+        .depth(views, &mut features, ws, &mut depth_q)
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let reference = reference_model::run(&bundle.blob, views)?;
+    let bits: Vec<u32> = depth_q.iter().map(|d| d.to_bits()).collect();
+    let bit_exact = bits == reference.depth
+        && features
+            .chunks_exact(config::FEATURE_LEN)
+            .zip(&reference.features)
+            .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
+    Ok(DepthMaps {
+        int8: depth_q.iter().map(|d| d.to_num::<f32>()).collect(),
+        float: floatref::run(&bundle.float, views)?.depth,
+        bit_exact,
+    })
+}
+
+/// Per-pixel |a − b|.
+fn abs_diff(a: &[f32], b: &[f32]) -> Vec<f32> {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).collect()
+}
+
+/// The pair's depth figure (`<name>_depth.png`) and point clouds (`<name>_int8.ply`,
+/// `<name>_float.ply`).
+fn write_pair_outputs(
+    dir: &Path,
+    name: &str,
+    maps: &DepthMaps,
+    gt: Option<&(Vec<f32>, Vec<bool>)>,
+) -> Result<()> {
+    // int8 | float | ground truth (labels clamped, as the metric reads them) | per-pixel
+    // |int8 − truth|; without ground truth the last panel is |int8 − float|.
+    let truth = gt.map(|(d, _)| metrics::clamp_labels(d));
+    let (error, error_title) = match &truth {
+        Some(t) => (abs_diff(&maps.int8, t), "|int8 - truth|"),
+        None => (abs_diff(&maps.int8, &maps.float), "|int8 - float|"),
+    };
+    let mut panels = vec![
+        figure::Panel::Depth {
+            title: "int8",
+            depth: &maps.int8,
+        },
+        figure::Panel::Depth {
+            title: "float",
+            depth: &maps.float,
+        },
+    ];
+    if let Some(t) = &truth {
+        panels.push(figure::Panel::Depth {
+            title: "ground truth",
+            depth: t,
+        });
+    }
+    panels.push(figure::Panel::Error {
+        title: error_title,
+        error: &error,
+        max_mm: 200.0,
+    });
+    preview::save_png(
+        &figure::depth_figure(&panels),
+        &dir.join(format!("{name}_depth.png")),
+    )?;
+    let keep: Vec<bool> = match gt {
+        Some((_, m)) => m.clone(),
+        None => maps
+            .int8
+            .iter()
+            .map(|&d| (d as f64) < config::R_MAX_M - 1e-3)
+            .collect(),
+    };
+    metrics::write_ply(
+        &dir.join(format!("{name}_int8.ply")),
+        &metrics::depth_points(&maps.int8, &keep)?,
+        Some([255, 140, 0]),
+    )?;
+    metrics::write_ply(
+        &dir.join(format!("{name}_float.ply")),
+        &metrics::depth_points(&maps.float, &keep)?,
+        Some([0, 160, 255]),
+    )?;
+    Ok(())
+}
+
+/// The pair's report: frames, pings, rolls, bit-exactness and scores against ground truth.
+fn pair_report(
+    group: &[usize],
+    frames: &FrameViews,
+    maps: &DepthMaps,
+    gt: Option<&(Vec<f32>, Vec<bool>)>,
+) -> Result<PairReport> {
+    let (float, int8) = match gt {
+        Some((d, m)) => (
+            Some(metrics::evaluate(&maps.float, d, m)?),
+            Some(metrics::evaluate(&maps.int8, d, m)?),
+        ),
+        None => (None, None),
+    };
+    let int8_vs_float_mae = 1000.0
+        * abs_diff(&maps.int8, &maps.float)
+            .iter()
+            .map(|&e| e as f64)
+            .sum::<f64>()
+        / config::DEPTH_LEN as f64;
+    Ok(PairReport {
+        frames: group.to_vec(),
+        pings: group.iter().map(|&f| frames.pings_of(f)).collect(),
+        rolls_deg: group.iter().map(|&f| frames.rolls[f]).collect(),
+        bit_exact: maps.bit_exact,
+        int8_vs_float_mae,
+        float,
+        int8,
+    })
 }
 
 fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -> Result<()> {

@@ -106,7 +106,6 @@ fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&st
             "--data",
             out,
             "--int8",
-            "--float-reference",
             "--json",
             "--breakdown",
         ];
@@ -144,7 +143,7 @@ fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&st
     let file = root().join(file);
     let doc = serde_json::json!({
         "what": format!(
-            "{}, `host-sim eval --int8 --float-reference` on `simulate --split test --seed 77 \
+            "{}, `host-sim eval --int8` on `simulate --split test --seed 77 \
              --pairs 48 --views {views}{}` per scene; mae = the paper's formula (all pixels, \
              labels clamped), mm",
             weights.unwrap_or("shipped model"),

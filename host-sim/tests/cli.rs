@@ -99,6 +99,8 @@ fn cli_simulate_three_views_and_metrics_json() {
     assert!(!st.success());
 }
 
+// Training is in the `train` feature (burn): `cargo test -p host-sim --features train`.
+#[cfg(feature = "train")]
 #[test]
 fn cli_train_takes_a_learning_rate_and_records_it() {
     let dir = tempfile::tempdir().unwrap();

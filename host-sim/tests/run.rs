@@ -390,7 +390,7 @@ fn a_four_ping_recording_runs_to_the_sample_folders_accuracy() {
         .args(weights)
         .arg("--data")
         .arg(&sim)
-        .args(["--int8", "--float-reference", "--json"])))
+        .args(["--int8", "--json"])))
     .unwrap();
     assert_eq!(eval["warnings"], serde_json::json!([]));
     for model in ["float", "int8"] {

@@ -17,6 +17,13 @@ pub struct LoadedSpec {
     pub hash: u32,
 }
 
+/// The repository's root folder, where `weights/` and `data/` are: the parent of this crate's
+/// folder, with no `..` in it (paths built from it print and store cleanly).
+pub fn repo_root() -> PathBuf {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    here.parent().unwrap_or(here).to_path_buf()
+}
+
 /// Parses a model spec from its JSON bytes.
 pub fn parse_spec(bytes: &[u8]) -> Result<ModelSpec, String> {
     serde_json::from_slice(bytes).map_err(|e| format!("model spec is not valid: {e}"))

@@ -19,7 +19,7 @@ pub fn firmware_blob_path() -> Result<PathBuf> {
     if let Ok(p) = std::env::var("EPSSN_BLOB") {
         return Ok(PathBuf::from(p));
     }
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
+    let root = epssn_spec::load::repo_root();
     epssn_spec::load::firmware_blob(&root, epssn::config::SPEC_FILE_NAME).map_err(|e| anyhow!(e))
 }
 
@@ -144,7 +144,7 @@ mod tests {
         assert_eq!(trained_pings_per_view(&dir), None, "older manifests");
         std::fs::remove_dir_all(&dir).unwrap();
         // The shipped models record theirs.
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
+        let root = epssn_spec::load::repo_root();
         assert_eq!(
             trained_pings_per_view(&root.join("weights/general")),
             Some(1)

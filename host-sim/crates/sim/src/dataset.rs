@@ -21,6 +21,11 @@ use crate::scene::{Scene, Split};
 use epssn_aris::npy::read_f32;
 
 /// The bundled demo: a simulated ARIS 3000 recording and its ground truth.
+pub fn demo_dir() -> PathBuf {
+    epssn_spec::load::repo_root().join("data/demo")
+}
+
+/// [`demo_dir`] as the compiler sees it (with `..` in it); prefer [`demo_dir`].
 pub const DEMO_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../data/demo");
 
 /// One loaded sample.

@@ -1,6 +1,7 @@
-//! The float EPSSN in burn 0.22 (flex CPU backend), built at run time from a model spec, its
-//! training (`host-sim train`) and evaluation (`host-sim eval`). The only crate of the host
-//! workspace that depends on burn.
+//! The float EPSSN in burn 0.22 (flex CPU backend), built at run time from a model spec, and
+//! its training (`host-sim train`, in host-sim's `train` feature). The only crate of the host
+//! workspace that depends on burn; `host-sim eval` scores with the f64 reference network
+//! instead (`epssn-eval`).
 //!
 //! The network follows `weights/<spec>.json` layer by layer, so the same code builds EPSSN-S
 //! and any tiny test configuration:
@@ -49,7 +50,7 @@
 #![deny(missing_docs)]
 
 pub mod cli;
-pub mod data;
+pub use epssn_eval::data;
 pub mod plot;
 pub mod train;
 
@@ -772,8 +773,8 @@ pub fn images_tensor(images: &[&[u8]], r: usize, w: usize, device: &Device) -> R
 }
 
 /// The repository root (the spec files of manifests are relative to it).
-fn repo_root() -> &'static Path {
-    Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../.."))
+fn repo_root() -> std::path::PathBuf {
+    epssn_spec::load::repo_root()
 }
 
 /// The model spec of a weights folder; see [`FloatModel::load`].
