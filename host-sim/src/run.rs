@@ -674,22 +674,16 @@ fn write_pair_outputs(
         &figure::depth_figure(&panels),
         &dir.join(format!("{name}_depth.png")),
     )?;
-    let keep: Vec<bool> = match gt {
-        Some((_, m)) => m.clone(),
-        None => maps
-            .int8
-            .iter()
-            .map(|&d| (d as f64) < config::R_MAX_M - 1e-3)
-            .collect(),
-    };
+    // Each cloud holds the map's own returns, with or without ground truth: what the device
+    // reports in the field, phantoms and misses included.
     metrics::write_ply(
         &dir.join(format!("{name}_int8.ply")),
-        &metrics::depth_points(&maps.int8, &keep)?,
+        &metrics::depth_points(&maps.int8, &metrics::prediction_mask(&maps.int8))?,
         Some([255, 140, 0]),
     )?;
     metrics::write_ply(
         &dir.join(format!("{name}_float.ply")),
-        &metrics::depth_points(&maps.float, &keep)?,
+        &metrics::depth_points(&maps.float, &metrics::prediction_mask(&maps.float))?,
         Some([0, 160, 255]),
     )?;
     Ok(())

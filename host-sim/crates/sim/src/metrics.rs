@@ -7,10 +7,16 @@
 //!   (in-window pixels) is reported alongside ([`Metrics::mae_masked`]), so that neither
 //!   reading is hidden.
 //! - CD = γ · (mean over p ∈ P of min over q ∈ Q of ‖p − q‖² + mean over q ∈ Q of min over
-//!   p ∈ P of ‖p − q‖²) with γ = 500, in m² × 500: the symmetric chamfer distance between the
-//!   point clouds of the two maps. Both clouds take the pixels of the same (ground-truth) mask,
-//!   converted through `epssn::geometry::polar_to_cartesian`; nearest neighbours come from a
-//!   `kiddo` k-d tree.
+//!   p ∈ P of ‖p − q‖²) with γ = 500, in m² × 500: the symmetric chamfer distance between two
+//!   point sets, as the paper has it: P the prediction's own points (the rays where it reports
+//!   a return, [`prediction_mask`]), Q the ground truth's (its mask), so a phantom point where
+//!   the truth is empty and a surface the prediction missed both count ([`Metrics::cd`]).
+//!   Pixels become points through `epssn::geometry::polar_to_cartesian`; nearest neighbours
+//!   come from a `kiddo` k-d tree. The older figure, both clouds through the ground-truth
+//!   mask, is reported beside it as [`Metrics::cd_gt_masked`] so the change can be read.
+//! - The prediction's return mask against the ground-truth mask: precision (of the rays it
+//!   reports a return on, the share that has one) and recall (of the rays with a return, the
+//!   share it reports).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -36,10 +42,22 @@ pub struct Metrics {
     pub mae: f64,
     /// MAE over the ground-truth mask only, mm (NaN for an empty mask).
     pub mae_masked: f64,
-    /// The paper's chamfer distance (γ = 500), over the masked pixels' points.
+    /// The paper's chamfer distance (γ = 500) between the prediction's own points (its
+    /// [`prediction_mask`]) and the ground truth's (its mask).
     pub cd: f64,
+    /// The chamfer distance with both clouds taken through the ground-truth mask (the figure
+    /// reported as `cd` before 2026-12): blind to phantom points and missed surfaces.
+    pub cd_gt_masked: f64,
+    /// Of the rays the prediction reports a return on, the share the ground truth has one on
+    /// (NaN when it reports none).
+    pub mask_precision: f64,
+    /// Of the rays the ground truth has a return on, the share the prediction reports (NaN for
+    /// an empty ground-truth mask).
+    pub mask_recall: f64,
     /// Pixels in the mask.
     pub valid_pixels: usize,
+    /// Pixels the prediction reports a return on.
+    pub predicted_pixels: usize,
     /// Pixels in the map.
     pub pixels: usize,
 }
@@ -139,6 +157,22 @@ pub fn mask_from_f32(mask: &[f32]) -> Vec<bool> {
     mask.iter().map(|&m| m > 0.5).collect()
 }
 
+/// How far inside the window a depth must read to count as a return: a ray that meets nothing
+/// reads r_max, one whose surface is nearer than the window r_min, up to this rounding.
+pub const RETURN_MARGIN_M: f64 = 1e-3;
+
+/// The rays a depth map reports a return on: depth more than [`RETURN_MARGIN_M`] inside
+/// `(r_min, r_max)`. The points a prediction's cloud and its chamfer distance are made of.
+pub fn prediction_mask(depth: &[f32]) -> Vec<bool> {
+    depth
+        .iter()
+        .map(|&d| {
+            let d = d as f64;
+            d > R_MIN_M + RETURN_MARGIN_M && d < R_MAX_M - RETURN_MARGIN_M
+        })
+        .collect()
+}
+
 /// Mask derived from a ground-truth map when none is given: pixels strictly inside the window
 /// (a label of exactly r_min or r_max means "nearer" or "nothing").
 pub fn derived_mask(gt: &[f32]) -> Vec<bool> {
@@ -161,10 +195,16 @@ pub struct Accuracy {
     pub mae_masked: Option<f64>,
     /// Its standard deviation.
     pub mae_masked_std: Option<f64>,
-    /// Mean of the paper's chamfer distance.
+    /// Mean of the paper's chamfer distance (the prediction's own points).
     pub cd: Option<f64>,
     /// Its standard deviation.
     pub cd_std: Option<f64>,
+    /// Mean of the chamfer distance through the ground-truth mask (the older figure).
+    pub cd_gt_masked: Option<f64>,
+    /// Mean precision of the prediction's return mask.
+    pub mask_precision: Option<f64>,
+    /// Mean recall of the prediction's return mask.
+    pub mask_recall: Option<f64>,
 }
 
 impl Accuracy {
@@ -189,23 +229,30 @@ impl Accuracy {
             mae_masked_std,
             cd,
             cd_std,
+            cd_gt_masked: stat(|m| m.cd_gt_masked).0,
+            mask_precision: stat(|m| m.mask_precision).0,
+            mask_recall: stat(|m| m.mask_recall).0,
         }
     }
 
-    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s`.
+    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s (GT-masked g), returns P p % R r %`.
     pub fn line(&self) -> String {
         let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
         if self.mae.is_none() {
             return "no ground truth".to_string();
         }
+        let pct = |v: Option<f64>| f(v.map(|x| 100.0 * x), 1);
         format!(
-            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {}",
+            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {} (GT-masked {}), returns P {} % R {} %",
             f(self.mae, 2),
             f(self.mae_std, 2),
             f(self.mae_masked, 2),
             f(self.mae_masked_std, 2),
             f(self.cd, 4),
-            f(self.cd_std, 4)
+            f(self.cd_std, 4),
+            f(self.cd_gt_masked, 4),
+            pct(self.mask_precision),
+            pct(self.mask_recall),
         )
     }
 }
@@ -217,17 +264,34 @@ pub fn clamp_labels(gt: &[f32]) -> Vec<f32> {
         .collect()
 }
 
-/// MAE (all pixels and masked, labels clamped) and CD of `pred` against `gt` over `mask`.
+/// MAE (all pixels and masked, labels clamped), CD and the return mask's precision and recall
+/// of `pred` against `gt` with its mask `mask`.
 pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
     let gt = clamp_labels(gt);
     let mae_masked = mae(pred, &gt, Some(mask))?;
     let mae_all = mae(pred, &gt, None)?;
-    let cd = chamfer(&depth_points(pred, mask)?, &depth_points(&gt, mask)?)?;
+    let own = prediction_mask(pred);
+    let gt_points = depth_points(&gt, mask)?;
+    let cd = chamfer(&depth_points(pred, &own)?, &gt_points)?;
+    let cd_gt_masked = chamfer(&depth_points(pred, mask)?, &gt_points)?;
+    let count = |m: &[bool]| m.iter().filter(|&&b| b).count();
+    let both = own.iter().zip(mask).filter(|(&p, &g)| p && g).count();
+    let ratio = |n: usize, d: usize| {
+        if d == 0 {
+            f64::NAN
+        } else {
+            n as f64 / d as f64
+        }
+    };
     Ok(Metrics {
         mae: mae_all,
         mae_masked,
         cd,
-        valid_pixels: mask.iter().filter(|m| **m).count(),
+        cd_gt_masked,
+        mask_precision: ratio(both, count(&own)),
+        mask_recall: ratio(both, count(mask)),
+        valid_pixels: count(mask),
+        predicted_pixels: count(&own),
         pixels: gt.len(),
     })
 }
@@ -376,7 +440,11 @@ pub fn run(args: &MetricsArgs) -> Result<()> {
     };
     let m = evaluate(&pred, &gt, &mask)?;
     if let Some(p) = &args.ply_pred {
-        write_ply(p, &depth_points(&pred, &mask)?, Some([230, 80, 40]))?;
+        write_ply(
+            p,
+            &depth_points(&pred, &prediction_mask(&pred))?,
+            Some([230, 80, 40]),
+        )?;
     }
     if let Some(p) = &args.ply_gt {
         write_ply(p, &depth_points(&gt, &mask)?, Some([40, 140, 230]))?;
@@ -385,8 +453,18 @@ pub fn run(args: &MetricsArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&m)?);
     } else {
         println!(
-            "MAE {:.3} mm (paper: all {} pixels, labels clamped; masked, {} pixels: {:.3} mm)   CD {:.5}",
-            m.mae, m.pixels, m.valid_pixels, m.mae_masked, m.cd
+            "MAE {:.3} mm (paper: all {} pixels, labels clamped; masked, {} pixels: {:.3} mm)   \
+             CD {:.5} ({} predicted points; {:.5} through the ground-truth mask)   returns: \
+             precision {:.3}, recall {:.3}",
+            m.mae,
+            m.pixels,
+            m.valid_pixels,
+            m.mae_masked,
+            m.cd,
+            m.predicted_pixels,
+            m.cd_gt_masked,
+            m.mask_precision,
+            m.mask_recall
         );
     }
     Ok(())
@@ -484,6 +562,44 @@ mod tests {
         assert!((m.cd - 0.1).abs() < 1e-4, "{}", m.cd);
         assert!((m.mae - 10.0).abs() < 1e-3);
         assert!((m.mae_masked - 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn cd_counts_phantom_points_and_missed_surfaces() {
+        let (e, a) = (3, 40);
+        let mut gt = vec![R_MAX_M as f32; DEPTH_LEN];
+        let mut mask = vec![false; DEPTH_LEN];
+        gt[e * DEPTH_COLUMNS + a] = 2.5;
+        mask[e * DEPTH_COLUMNS + a] = true;
+        // The truth exactly, plus one phantom return on a ray that meets nothing.
+        let mut pred = gt.clone();
+        pred[(e + 1) * DEPTH_COLUMNS + a + 10] = 2.7;
+        let m = evaluate(&pred, &gt, &mask).unwrap();
+        assert_eq!(
+            m.cd_gt_masked, 0.0,
+            "the ground-truth mask hides the phantom"
+        );
+        let pts = depth_points(&pred, &prediction_mask(&pred)).unwrap();
+        let want = CD_SCALE * 0.5 * {
+            let (p, q) = (pts[0], pts[1]);
+            (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f64>()
+        };
+        assert!(
+            (m.cd - want).abs() < 1e-9 && m.cd > 0.0,
+            "{} vs {want}",
+            m.cd
+        );
+        assert_eq!((m.predicted_pixels, m.valid_pixels), (2, 1));
+        assert!((m.mask_precision - 0.5).abs() < 1e-12);
+        assert!((m.mask_recall - 1.0).abs() < 1e-12);
+        // A missed surface: no predicted points at all, recall 0, precision undefined.
+        let missed = vec![R_MAX_M as f32; DEPTH_LEN];
+        let m = evaluate(&missed, &gt, &mask).unwrap();
+        assert_eq!((m.predicted_pixels, m.mask_recall), (0, 0.0));
+        assert!(m.mask_precision.is_nan() && m.cd.is_nan());
+        // Depths at the window's ends are no returns.
+        let ends = [R_MIN_M as f32, R_MAX_M as f32, (R_MAX_M - 5e-4) as f32, 2.5];
+        assert_eq!(prediction_mask(&ends), [false, false, false, true]);
     }
 
     #[test]
