@@ -61,11 +61,14 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
     );
     let r = spec.input.range_bins as usize;
     let b = spec.input.beam_columns as usize;
-    check(beams % b == 0, "beams must be a multiple of beam_columns");
+    check(
+        beams.is_multiple_of(b),
+        "beams must be a multiple of beam_columns",
+    );
     let group = beams / b;
     let stride = spec.features.stride as usize;
     check(
-        r % stride == 0 && b % stride == 0,
+        r.is_multiple_of(stride) && b.is_multiple_of(stride),
         "input size must be a multiple of the stride",
     );
     let (fr, fb) = (r / stride, b / stride);

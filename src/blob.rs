@@ -207,7 +207,7 @@ impl<'a> Blob<'a> {
         let len = read_u32(raw, 28)? as usize;
         let size = len.checked_mul(dtype.size())?;
         let end = offset.checked_add(size)?;
-        if offset % 4 != 0 || offset < data_start || end > data_end {
+        if !offset.is_multiple_of(4) || offset < data_start || end > data_end {
             return None;
         }
         Some(TensorEntry {

@@ -756,7 +756,7 @@ fn table_column(
     let ok = reference.len() == n
         && src.len() == n
         && width > 0
-        && n % width == 0
+        && n.is_multiple_of(width)
         && col < width
         && c.checked_add(1).is_some_and(|c1| c1 < width)
         && ((wl >= 0 && wr >= 0 && wl as i32 + wr as i32 == 256) || (wl, wr) == (0, 0))
@@ -858,7 +858,7 @@ pub fn cost_column3(
     let ok = reference.len() == n
         && sources.iter().all(|s| s.len() == n)
         && width > 0
-        && n % width == 0
+        && n.is_multiple_of(width)
         && col < width
         && taps.iter().all(|&t| tap_ok(t))
         && requant.multiplier >= 0

@@ -101,14 +101,7 @@ fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&st
         host_sim(&sim);
         // The float maps from the f64 reference network: burn's flex backend gives wrong float
         // maps for batches of 8 in the dev profile this test runs in (release is right).
-        let mut args = vec![
-            "eval",
-            "--data",
-            out,
-            "--int8",
-            "--json",
-            "--breakdown",
-        ];
+        let mut args = vec!["eval", "--data", out, "--int8", "--json", "--breakdown"];
         if let Some(w) = weights {
             args.extend(["--weights", w]);
         }

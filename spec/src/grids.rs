@@ -74,7 +74,12 @@ impl ModelGrids {
         let r = spec.input.range_bins as usize;
         let b = spec.input.beam_columns as usize;
         let stride = spec.features.stride as usize;
-        if b == 0 || stride == 0 || beams % b != 0 || r % stride != 0 || b % stride != 0 {
+        if b == 0
+            || stride == 0
+            || !beams.is_multiple_of(b)
+            || !r.is_multiple_of(stride)
+            || !b.is_multiple_of(stride)
+        {
             return Err(GridError::Divisibility);
         }
         let group = beams / b;

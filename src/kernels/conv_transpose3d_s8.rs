@@ -49,7 +49,7 @@ pub fn conv_transpose3d_s8_plain(
     // Input index on one axis that output `z` reaches through tap `k`, if any.
     let source = |z: usize, k: usize, s: usize, p: usize, n: usize| -> Option<usize> {
         let num = (z + p) as isize - k as isize;
-        if num < 0 || num as usize % s != 0 || num as usize / s >= n {
+        if num < 0 || !(num as usize).is_multiple_of(s) || num as usize / s >= n {
             None
         } else {
             Some(num as usize / s)
