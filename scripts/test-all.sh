@@ -29,6 +29,8 @@ cargo fmt --all -- --check
 
 step "supply chain: licences, bans, sources and, when the RustSec database is reachable, advisories (cargo-deny, all five workspaces)"
 bash scripts/deny.sh
+# The SIL compares builds of the five workspaces bit for bit: they share every crate's version.
+python3 scripts/check-locks.py
 
 step "clippy (host workspace, all targets, -D warnings)"
 cargo clippy --workspace --all-targets -- -D warnings
