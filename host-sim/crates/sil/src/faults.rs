@@ -1,6 +1,6 @@
 //! The fault generators of `host-sim sil`, against the device of `device.rs`.
 //!
-//! The fault campaign of `--faults N`: every fault class of issue 14 sent to the firmware in
+//! The fault campaign of `--faults N`: every fault class of docs/LINK.md sent to the firmware in
 //! QEMU, `N` rounds per class from a fixed seed. Each fault is followed by a valid status
 //! request. The expected replies come from an oracle: the library's own decoder
 //! (`epssn::link::Decoder`, the one the firmware runs) fed the same bytes, with `idle()`

@@ -52,7 +52,7 @@ pub struct SilArgs {
     /// After the frames, send this many malformed messages (with status requests between).
     #[arg(long, default_value_t = 0)]
     pub fuzz: usize,
-    /// Fault campaign (docs/LINK.md, issue 14): rounds per fault class, each fault checked
+    /// Fault campaign (docs/LINK.md, "Fault campaign"): rounds per fault class, each fault checked
     /// against the library decoder's verdict, then a hello and valid frames checked bit for bit.
     #[arg(long, default_value_t = 2)]
     pub faults: usize,
@@ -175,10 +175,6 @@ pub struct SilReport {
     pub budget_violations: Vec<String>,
 }
 
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..")
-}
-
 /// The weight blob the firmware embeds.
 fn firmware_blob() -> Result<Vec<u8>> {
     let path = epssn_reference::weights::firmware_blob_path()?;
@@ -191,7 +187,7 @@ fn firmware_blob() -> Result<Vec<u8>> {
 /// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
-    let dir = repo_root().join("firmware");
+    let dir = epssn_spec::load::repo_root().join("firmware");
     let spec_file = epssn::config::SPEC_FILE_NAME;
     let target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
@@ -333,7 +329,8 @@ const AFTER_FAULTS_FRAMES: usize = 6;
 
 /// The default ELF of the STM32H743 board (`boards/stm32h743`, release).
 fn board_elf() -> PathBuf {
-    repo_root().join("boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743")
+    epssn_spec::load::repo_root()
+        .join("boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743")
 }
 
 /// What streaming frames gave.
@@ -563,7 +560,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     let recording = args
         .recording
         .clone()
-        .unwrap_or_else(|| Path::new(epssn_sim::dataset::DEMO_DIR).join("recording.aris"));
+        .unwrap_or_else(|| epssn_sim::dataset::demo_dir().join("recording.aris"));
     let blob = firmware_blob()?;
     let frames = prepare_frames(&recording, args.frames, &blob)?;
     if frames.is_empty() {

@@ -25,9 +25,6 @@ pub fn demo_dir() -> PathBuf {
     epssn_spec::load::repo_root().join("data/demo")
 }
 
-/// [`demo_dir`] as the compiler sees it (with `..` in it); prefer [`demo_dir`].
-pub const DEMO_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../data/demo");
-
 /// One loaded sample.
 #[derive(Clone, Debug)]
 pub struct Sample {

@@ -772,11 +772,6 @@ pub fn images_tensor(images: &[&[u8]], r: usize, w: usize, device: &Device) -> R
     ))
 }
 
-/// The repository root (the spec files of manifests are relative to it).
-fn repo_root() -> std::path::PathBuf {
-    epssn_spec::load::repo_root()
-}
-
 /// The model spec of a weights folder; see [`FloatModel::load`].
 pub fn folder_spec(dir: &Path) -> Result<ModelSpec> {
     let manifest = dir.join("manifest.json");
@@ -792,7 +787,8 @@ pub fn folder_spec(dir: &Path) -> Result<ModelSpec> {
         Err(_) => None,
     };
     if let Some((Some(file), hash)) = &recorded {
-        let path = repo_root().join(file);
+        // The spec files of manifests are relative to the repository root.
+        let path = epssn_spec::load::repo_root().join(file);
         if let Ok(loaded) = epssn_spec::load::load_spec(&path) {
             if loaded.hash == *hash {
                 return Ok(loaded.spec);
