@@ -703,12 +703,7 @@ fn pair_report(
         ),
         None => (None, None),
     };
-    let int8_vs_float_mae = 1000.0
-        * abs_diff(&maps.int8, &maps.float)
-            .iter()
-            .map(|&e| e as f64)
-            .sum::<f64>()
-        / config::DEPTH_LEN as f64;
+    let int8_vs_float_mae = metrics::mae(&maps.int8, &maps.float, None)?;
     Ok(PairReport {
         frames: group.to_vec(),
         pings: group.iter().map(|&f| frames.pings_of(f)).collect(),

@@ -183,10 +183,11 @@ fn score(weights_dir: &Path, set: &[Sample], int8: bool, breakdown: bool) -> Res
             if breakdown {
                 s.int8_breakdown.add(&dq, &sample.depth, &mask)?;
             }
-            s.int8_vs_float.push(mean_abs_mm(&dq, &float, None));
+            // The MAE's own formula with the float map in place of the labels.
+            s.int8_vs_float.push(metrics::mae(&dq, &float, None)?);
             if mask.iter().any(|&m| m) {
                 s.int8_vs_float_mask
-                    .push(mean_abs_mm(&dq, &float, Some(&mask)));
+                    .push(metrics::mae(&dq, &float, Some(&mask))?);
             }
         }
     }
@@ -204,19 +205,6 @@ fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample) -> Result<Vec<
     Ok(floatref::run_folded(folded, &views, &mut |_, _| {})
         .with_context(|| format!("float network on {}", sample.dir.display()))?
         .depth)
-}
-
-/// Mean absolute difference of two depth maps in mm, over the pixels of `mask` (all without).
-fn mean_abs_mm(a: &[f32], b: &[f32], mask: Option<&[bool]>) -> f64 {
-    let (sum, n) = a
-        .iter()
-        .zip(b)
-        .enumerate()
-        .filter(|(i, _)| mask.is_none_or(|m| m[*i]))
-        .fold((0f64, 0usize), |(s, n), (_, (x, y))| {
-            (s + (x - y).abs() as f64, n + 1)
-        });
-    1000.0 * sum / n.max(1) as f64
 }
 
 /// Mean of a list (NaN for none: JSON null, a table's NaN).

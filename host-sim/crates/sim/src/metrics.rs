@@ -275,6 +275,7 @@ pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
     let cd = chamfer(&depth_points(pred, &own)?, &gt_points)?;
     let cd_gt_masked = chamfer(&depth_points(pred, mask)?, &gt_points)?;
     let count = |m: &[bool]| m.iter().filter(|&&b| b).count();
+    let (valid, predicted) = (count(mask), count(&own));
     let both = own.iter().zip(mask).filter(|(&p, &g)| p && g).count();
     let ratio = |n: usize, d: usize| {
         if d == 0 {
@@ -288,10 +289,10 @@ pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
         mae_masked,
         cd,
         cd_gt_masked,
-        mask_precision: ratio(both, count(&own)),
-        mask_recall: ratio(both, count(mask)),
-        valid_pixels: count(mask),
-        predicted_pixels: count(&own),
+        mask_precision: ratio(both, predicted),
+        mask_recall: ratio(both, valid),
+        valid_pixels: valid,
+        predicted_pixels: predicted,
         pixels: gt.len(),
     })
 }

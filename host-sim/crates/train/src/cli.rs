@@ -236,7 +236,6 @@ struct Plan {
     steps_per_epoch: usize,
     total_steps: usize,
     lr: f64,
-    lr_halved_at_fraction: f64,
 }
 
 impl Plan {
@@ -289,7 +288,6 @@ impl Plan {
         // A last batch of one sample would break batch norm; it is dropped.
         let steps_per_epoch = n / batch + usize::from(n % batch >= 2);
         Ok(Plan {
-            lr_halved_at_fraction: spec.training.lr_halved_at_fraction,
             total_steps: args.epochs * steps_per_epoch,
             spec,
             spec_path,
@@ -445,7 +443,7 @@ fn run_epochs(
             let b: Vec<&Sample> = idx.iter().map(|&i| &plan.train_set[i]).collect();
             let rate = lr_at(
                 plan.lr,
-                plan.lr_halved_at_fraction,
+                plan.spec.training.lr_halved_at_fraction,
                 state.global_step,
                 total,
             );
@@ -510,7 +508,7 @@ fn manifest(args: &TrainArgs, plan: &Plan, state: &TrainState) -> serde_json::Va
         "epochs": args.epochs,
         "steps": state.global_step,
         "lr": plan.lr,
-        "lr_halved_at_step": (plan.lr_halved_at_fraction * plan.total_steps as f64).ceil() as usize,
+        "lr_halved_at_step": (spec.training.lr_halved_at_fraction * plan.total_steps as f64).ceil() as usize,
         "loss": if args.ce_weight > 0.0 {
             "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)| + ce_weight * mean over pixels of w*CE(two-hot(clamp(d)), softmax over range bins), w = lambda on mask pixels, 1 elsewhere; val_loss is the first term"
         } else {
