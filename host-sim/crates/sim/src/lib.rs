@@ -7,9 +7,12 @@
 pub mod dataset;
 pub mod draw;
 pub mod groundtruth;
+pub mod mesh;
 pub mod metrics;
 pub mod preview;
 pub mod render;
 pub mod scene;
 pub mod simulate;
+pub mod site;
 pub mod synthetic;
+pub mod tessellate;

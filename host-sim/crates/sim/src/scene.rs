@@ -27,13 +27,18 @@ pub enum SceneKind {
     Terrain,
     /// A water tank (floor, walls) with bricks, concrete blocks and arches.
     Artificial,
+    /// A fixed site read from a mesh file (`simulate --site`), seen from poses drawn throughout
+    /// it; not a value of `--scene`.
+    #[value(skip)]
+    Site,
 }
 
 impl SceneKind {
     /// The paper's (train, test) split sizes.
     pub fn paper_split_sizes(self) -> (usize, usize) {
         match self {
-            SceneKind::Artificial => (4000, 2000),
+            // The paper's artificial set is one fixed tank seen from random poses: a site.
+            SceneKind::Artificial | SceneKind::Site => (4000, 2000),
             SceneKind::Terrain => (1000, 1000),
             SceneKind::Sphere => (1000, 500),
         }
@@ -192,6 +197,18 @@ pub enum Object {
     },
     /// A fractal seabed heightfield.
     Terrain(TerrainSpec),
+    /// A site's triangle mesh (`simulate --site`), in the world frame; the mesh itself is
+    /// given to [`World::with_site`], which checks it is this file.
+    Site {
+        /// The mesh file's name (no folder).
+        file: String,
+        /// SHA-256 of the file's bytes, lower-case hex.
+        sha256: String,
+        /// Triangles in the mesh.
+        triangles: usize,
+        /// Acoustic reflectivity of every triangle.
+        reflectivity: f64,
+    },
 }
 
 /// A sample's scene: everything needed to regenerate it exactly.
@@ -293,6 +310,7 @@ pub fn sample_seed(seed: u64, kind: SceneKind, split: Split, index: u64) -> u64 
         SceneKind::Sphere => 1,
         SceneKind::Terrain => 2,
         SceneKind::Artificial => 3,
+        SceneKind::Site => 4,
     };
     let s = match split {
         Split::Train => 0x7472_6169_6e00_0000u64,
@@ -301,7 +319,15 @@ pub fn sample_seed(seed: u64, kind: SceneKind, split: Split, index: u64) -> u64 
     mix64(mix64(mix64(seed) ^ s ^ k) ^ index)
 }
 
-/// Draws the scene of one sample.
+/// The roll of each of `views` views: the spec's roll step apart, the reference first.
+pub fn view_rolls_deg(views: usize) -> Vec<f64> {
+    (0..views)
+        .map(|k| config::ROLL_STEP_DEG * k as f64)
+        .collect()
+}
+
+/// Draws the scene of one sample (a site's scenes are drawn by `site::generate`, which needs
+/// the mesh: here a site kind gives an empty scene at the identity pose).
 pub fn generate(kind: SceneKind, split: Split, seed: u64, index: u64, views: usize) -> Scene {
     let sample_seed = sample_seed(seed, kind, split, index);
     let mut rng = ChaCha8Rng::seed_from_u64(sample_seed);
@@ -309,6 +335,7 @@ pub fn generate(kind: SceneKind, split: Split, seed: u64, index: u64, views: usi
         SceneKind::Sphere => (SonarPose::IDENTITY, vec![draw_sphere(&mut rng)]),
         SceneKind::Terrain => draw_terrain(&mut rng, split),
         SceneKind::Artificial => draw_tank(&mut rng),
+        SceneKind::Site => (SonarPose::IDENTITY, Vec::new()),
     };
     Scene {
         kind,
@@ -317,15 +344,14 @@ pub fn generate(kind: SceneKind, split: Split, seed: u64, index: u64, views: usi
         seed,
         sample_seed,
         sonar,
-        view_rolls_deg: (0..views)
-            .map(|k| config::ROLL_STEP_DEG * k as f64)
-            .collect(),
+        view_rolls_deg: view_rolls_deg(views),
         view_pose_errors_deg: Vec::new(),
         objects,
     }
 }
 
-fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+/// Uniform in `[lo, hi)` from one draw of `rng`.
+pub fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
     lo + (hi - lo) * rng.random::<f64>()
 }
 
@@ -344,9 +370,9 @@ fn draw_sphere(rng: &mut ChaCha8Rng) -> Object {
 }
 
 /// Downward tilt of terrain and tank poses, degrees: drawn uniformly in this range.
-const TILT_RANGE_DEG: (f64, f64) = (15.0, 25.0);
+pub const TILT_RANGE_DEG: (f64, f64) = (15.0, 25.0);
 /// Range at which the boresight meets flat ground, metres: drawn uniformly in this range.
-const SLANT_RANGE_M: (f64, f64) = (2.5, 3.0);
+pub const SLANT_RANGE_M: (f64, f64) = (2.5, 3.0);
 
 impl SonarPose {
     /// Looking down `tilt_deg` from the height at which the boresight meets flat ground at
@@ -371,7 +397,8 @@ fn looking_down(rng: &mut ChaCha8Rng, yaw_range: f64) -> SonarPose {
 /// the drawn ranges (tilt 20°, slant 2.75 m, heading 0), its terrain and objects as drawn.
 /// Spheres keep their identity pose.
 pub fn fix_pose(scene: &mut Scene) {
-    if scene.kind == SceneKind::Sphere {
+    // A sphere's pose is the identity; a site's poses are drawn throughout it.
+    if matches!(scene.kind, SceneKind::Sphere | SceneKind::Site) {
         return;
     }
     let middle = |(lo, hi): (f64, f64)| (lo + hi) / 2.0;
@@ -830,7 +857,7 @@ impl Heightfield {
 }
 
 /// Möller–Trumbore; hits on the edges count (cells share edges, so no ray slips through).
-fn ray_triangle(o: [f64; 3], d: [f64; 3], tri: [[f64; 3]; 3]) -> Option<f64> {
+pub(crate) fn ray_triangle(o: [f64; 3], d: [f64; 3], tri: [[f64; 3]; 3]) -> Option<f64> {
     let e1 = sub(tri[1], tri[0]);
     let e2 = sub(tri[2], tri[0]);
     let p = cross(d, e2);
@@ -880,6 +907,10 @@ enum Solid {
         refl: f64,
     },
     Terrain(Heightfield),
+    Mesh {
+        mesh: std::sync::Arc<crate::site::SiteMesh>,
+        refl: f64,
+    },
 }
 
 impl Solid {
@@ -971,6 +1002,11 @@ impl Solid {
                 })
             }
             Solid::Terrain(h) => h.cast(o, d),
+            Solid::Mesh { mesh, refl } => mesh.cast(o, d).map(|(t, normal)| Hit {
+                t,
+                normal,
+                reflectivity: *refl,
+            }),
         }
     }
 }
@@ -982,74 +1018,108 @@ pub struct World {
 }
 
 impl World {
-    /// Builds the ray-casting form of `scene` (evaluates terrain heights).
+    /// Builds the ray-casting form of `scene` (evaluates terrain heights). A site object is
+    /// left out: its mesh comes from [`World::with_site`].
     pub fn new(scene: &Scene) -> Self {
         let solids = scene
             .objects
             .iter()
-            .map(|o| match o {
-                Object::Sphere {
-                    center_m,
-                    radius_m,
-                    reflectivity,
-                } => Solid::Sphere {
-                    c: *center_m,
-                    r: *radius_m,
-                    refl: *reflectivity,
-                },
-                Object::Plane {
-                    point_m,
-                    normal,
-                    reflectivity,
-                    ..
-                } => Solid::Plane {
-                    p: *point_m,
-                    n: normalise(*normal),
-                    refl: *reflectivity,
-                },
-                Object::Block {
-                    base_center_m,
-                    size_m,
-                    yaw_deg,
-                    reflectivity,
-                    ..
-                } => Solid::Block {
-                    frame: LocalFrame::new(*base_center_m, *yaw_deg),
-                    half: [size_m[0] / 2.0, size_m[1] / 2.0],
-                    height: size_m[2],
-                    refl: *reflectivity,
-                },
-                Object::Arch {
-                    base_center_m,
-                    size_m,
-                    opening_radius_m,
-                    yaw_deg,
-                    reflectivity,
-                } => Solid::Arch {
-                    frame: LocalFrame::new(*base_center_m, *yaw_deg),
-                    half: [size_m[0] / 2.0, size_m[1] / 2.0],
-                    height: size_m[2],
-                    radius: *opening_radius_m,
-                    refl: *reflectivity,
-                },
-                Object::Terrain(spec) => {
-                    let z = terrain_heights(spec);
-                    let zmin = z.iter().copied().fold(f64::INFINITY, f64::min);
-                    let zmax = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-                    Solid::Terrain(Heightfield {
-                        z,
-                        nx: spec.points[0].max(2),
-                        ny: spec.points[1].max(2),
-                        origin: spec.origin_m,
-                        cell: spec.cell_m,
-                        zmin: zmin - 1e-6,
-                        zmax: zmax + 1e-6,
-                        reflectivity: spec.reflectivity,
-                    })
-                }
+            .filter_map(|o| {
+                Some(match o {
+                    Object::Sphere {
+                        center_m,
+                        radius_m,
+                        reflectivity,
+                    } => Solid::Sphere {
+                        c: *center_m,
+                        r: *radius_m,
+                        refl: *reflectivity,
+                    },
+                    Object::Plane {
+                        point_m,
+                        normal,
+                        reflectivity,
+                        ..
+                    } => Solid::Plane {
+                        p: *point_m,
+                        n: normalise(*normal),
+                        refl: *reflectivity,
+                    },
+                    Object::Block {
+                        base_center_m,
+                        size_m,
+                        yaw_deg,
+                        reflectivity,
+                        ..
+                    } => Solid::Block {
+                        frame: LocalFrame::new(*base_center_m, *yaw_deg),
+                        half: [size_m[0] / 2.0, size_m[1] / 2.0],
+                        height: size_m[2],
+                        refl: *reflectivity,
+                    },
+                    Object::Arch {
+                        base_center_m,
+                        size_m,
+                        opening_radius_m,
+                        yaw_deg,
+                        reflectivity,
+                    } => Solid::Arch {
+                        frame: LocalFrame::new(*base_center_m, *yaw_deg),
+                        half: [size_m[0] / 2.0, size_m[1] / 2.0],
+                        height: size_m[2],
+                        radius: *opening_radius_m,
+                        refl: *reflectivity,
+                    },
+                    Object::Terrain(spec) => {
+                        let z = terrain_heights(spec);
+                        let zmin = z.iter().copied().fold(f64::INFINITY, f64::min);
+                        let zmax = z.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                        Solid::Terrain(Heightfield {
+                            z,
+                            nx: spec.points[0].max(2),
+                            ny: spec.points[1].max(2),
+                            origin: spec.origin_m,
+                            cell: spec.cell_m,
+                            zmin: zmin - 1e-6,
+                            zmax: zmax + 1e-6,
+                            reflectivity: spec.reflectivity,
+                        })
+                    }
+                    Object::Site { .. } => return None,
+                })
             })
             .collect();
         Self { solids }
+    }
+
+    /// The ray-casting form of a site scene: its other objects and `site`'s mesh, which must be
+    /// the file its [`Object::Site`] names (same SHA-256).
+    pub fn with_site(scene: &Scene, site: &crate::site::Site) -> anyhow::Result<Self> {
+        let mut world = Self::new(scene);
+        let mut found = false;
+        for o in &scene.objects {
+            if let Object::Site {
+                file,
+                sha256,
+                reflectivity,
+                ..
+            } = o
+            {
+                anyhow::ensure!(
+                    *sha256 == site.sha256,
+                    "the scene's site {file} has SHA-256 {sha256}, the mesh given {} has {}",
+                    site.file,
+                    site.sha256
+                );
+                world.solids.push(Solid::Mesh {
+                    mesh: site.mesh.clone(),
+                    refl: *reflectivity,
+                });
+                found = true;
+            }
+        }
+        anyhow::ensure!(found, "the scene has no site object");
+        Ok(world)
     }
 
     /// First hit of the ray from `o` along unit `d` (world frame), over every object.

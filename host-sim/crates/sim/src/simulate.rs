@@ -11,6 +11,9 @@
 //!
 //! Each sample's randomness derives from (seed, scene kind, split, index) only, so the output is
 //! byte-identical for the same arguments whatever the thread count.
+//!
+//! `--site FILE` draws the samples throughout one mesh instead (`crate::site`, docs/SITES.md);
+//! `--export-mesh FILE` writes a procedural scene as such a mesh (`crate::tessellate`).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -23,6 +26,7 @@ use rayon::prelude::*;
 use crate::groundtruth::{elevation_map, front_depth, polar_image};
 use crate::render::{frame_header_posed, render_view, SonarSimParams};
 use crate::scene::{fix_pose, generate, Scene, SceneKind, Split, World};
+use crate::site::{Region, Site};
 use epssn_aris::aris::write_recording;
 
 /// Everything written for one sample.
@@ -44,20 +48,37 @@ pub struct SampleData {
     pub elevation: Vec<f32>,
 }
 
-/// Renders and labels a scene.
+/// Renders and labels a procedural scene.
 pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleData> {
+    ensure!(
+        scene.kind != SceneKind::Site,
+        "a site's scene needs its mesh: simulate_site_scene"
+    );
+    simulate_world(scene, &World::new(scene), params)
+}
+
+/// Renders and labels a scene of `site` (the mesh its `scene.json` names).
+pub fn simulate_site_scene(
+    scene: &Scene,
+    site: &Site,
+    params: &SonarSimParams,
+) -> Result<SampleData> {
+    simulate_world(scene, &World::with_site(scene, site)?, params)
+}
+
+/// Renders and labels a scene whose ray-casting form is `world`.
+pub fn simulate_world(scene: &Scene, world: &World, params: &SonarSimParams) -> Result<SampleData> {
     ensure!(
         (1..=MAX_VIEWS).contains(&scene.view_rolls_deg.len()),
         "a scene needs 1 to {MAX_VIEWS} views, this one has {}",
         scene.view_rolls_deg.len()
     );
-    let world = World::new(scene);
     let mut frames = Vec::new();
     let mut pings = Vec::new();
     let mut polar_views = Vec::new();
     let mut elevation = Vec::new();
     for k in 0..scene.view_rolls_deg.len() {
-        let view = render_view(scene, &world, k, params);
+        let view = render_view(scene, world, k, params);
         if k == 0 {
             elevation = elevation_map(&view, params);
         }
@@ -65,7 +86,7 @@ pub fn simulate_scene(scene: &Scene, params: &SonarSimParams) -> Result<SampleDa
         frames.push(view.samples);
         pings.push(view.pings);
     }
-    let (depth, mask) = front_depth(scene, &world, 0);
+    let (depth, mask) = front_depth(scene, world, 0);
     Ok(SampleData {
         scene: scene.clone(),
         frames,
@@ -162,9 +183,25 @@ pub fn sample_dir(root: &Path, split: Split, index: u64) -> PathBuf {
 /// `host-sim simulate`.
 #[derive(clap::Args, Debug)]
 pub struct SimulateArgs {
-    /// Scene family.
-    #[arg(long, value_enum)]
-    pub scene: SceneKind,
+    /// Scene family (or `--site`).
+    #[arg(long, value_enum, required_unless_present = "site")]
+    pub scene: Option<SceneKind>,
+    /// Draw the samples throughout the site in this mesh file (.stl, .obj, .ply; metres, z up,
+    /// wound counter-clockwise seen from the water): docs/SITES.md.
+    #[arg(long, conflicts_with_all = ["scene", "fixed_pose"])]
+    pub site: Option<PathBuf>,
+    /// Where in the site poses are drawn (JSON, docs/SITES.md); default: the mesh's bounds less
+    /// 0.3 m, at the procedural scenes' tilts and slant ranges, any heading.
+    #[arg(long, requires = "site")]
+    pub region: Option<PathBuf>,
+    /// Acoustic reflectivity of the site's every triangle.
+    #[arg(long, default_value_t = 0.6, requires = "site")]
+    pub site_reflectivity: f64,
+    /// Write the scene of sample 0 (of `--seed`, `--split`) as a mesh to this file (.stl
+    /// binary, .obj, .ply ASCII) instead of simulating: the tank's floor and walls and its
+    /// objects, in its world frame.
+    #[arg(long, requires = "scene")]
+    pub export_mesh: Option<PathBuf>,
     /// Number of samples; default: the paper's size of the split (artificial 4000/2000,
     /// terrain 1000/1000, sphere 1000/500).
     #[arg(long)]
@@ -248,9 +285,50 @@ pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
         .collect();
 }
 
+/// `simulate --export-mesh FILE`: writes sample 0's scene as a mesh.
+fn export_mesh(kind: SceneKind, args: &SimulateArgs, path: &Path) -> Result<()> {
+    let format = crate::mesh::MeshFormat::from_path(path)?;
+    let scene = generate(kind, args.split, args.seed, 0, args.views as usize);
+    let mesh = crate::tessellate::scene_mesh(&scene)?;
+    let bytes = crate::mesh::to_bytes(&mesh, format);
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::write(path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+    eprintln!(
+        "wrote {} triangles ({} bytes, SHA-256 {}) of {kind:?} seed {} {} sample 0 to {}",
+        mesh.triangles.len(),
+        bytes.len(),
+        crate::mesh::content_hash(&bytes),
+        args.seed,
+        args.split.name(),
+        path.display()
+    );
+    Ok(())
+}
+
 /// Runs `host-sim simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
-    let (train, test) = args.scene.paper_split_sizes();
+    let site = args.site.as_deref().map(Site::load).transpose()?;
+    let kind = match (&site, args.scene) {
+        (Some(_), _) => SceneKind::Site,
+        (None, Some(kind)) => kind,
+        (None, None) => anyhow::bail!("give --scene or --site"),
+    };
+    if let Some(path) = &args.export_mesh {
+        return export_mesh(kind, args, path);
+    }
+    let region = match &args.region {
+        Some(p) => Region::load(p)?,
+        None => Region::default(),
+    };
+    ensure!(
+        args.site_reflectivity.is_finite()
+            && args.site_reflectivity > 0.0
+            && args.site_reflectivity <= 1.0,
+        "--site-reflectivity must be within (0, 1]"
+    );
+    let (train, test) = kind.paper_split_sizes();
     let pairs = args.pairs.unwrap_or(match args.split {
         Split::Train => train,
         Split::Test => test,
@@ -293,12 +371,27 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     (0..pairs as u64)
         .into_par_iter()
         .try_for_each(|i| -> Result<()> {
-            let mut scene = generate(args.scene, args.split, args.seed, i, args.views as usize);
+            let views = args.views as usize;
+            let mut scene = match &site {
+                Some(site) => crate::site::generate(
+                    site,
+                    &region,
+                    args.site_reflectivity,
+                    args.split,
+                    args.seed,
+                    i,
+                    views,
+                )?,
+                None => generate(kind, args.split, args.seed, i, views),
+            };
             jitter_pose(&mut scene, args.pose_jitter_deg, args.pose_jitter_axes);
             if args.fixed_pose {
                 fix_pose(&mut scene);
             }
-            let data = simulate_scene(&scene, &params)?;
+            let data = match &site {
+                Some(site) => simulate_site_scene(&scene, site, &params)?,
+                None => simulate_scene(&scene, &params)?,
+            };
             write_sample(
                 &sample_dir(&args.out, args.split, i),
                 &data,
@@ -314,7 +407,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     eprintln!(
         "wrote {} {:?} samples to {} in {:.2} s ({:.1} samples/s)",
         done.load(Ordering::Relaxed),
-        args.scene,
+        kind,
         split_dir.display(),
         secs,
         pairs as f64 / secs.max(1e-9)

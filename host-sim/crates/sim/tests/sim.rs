@@ -78,7 +78,11 @@ fn simulate_jittered(
     jitter: f64,
 ) {
     run(&SimulateArgs {
-        scene,
+        scene: Some(scene),
+        site: None,
+        region: None,
+        site_reflectivity: 0.6,
+        export_mesh: None,
         pairs: Some(pairs),
         seed,
         out: out.to_path_buf(),
@@ -567,7 +571,11 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
     let params_file = dir.path().join("params.json");
     std::fs::write(&params_file, serde_json::to_string(&params).unwrap()).unwrap();
     run(&SimulateArgs {
-        scene: SceneKind::Artificial,
+        scene: Some(SceneKind::Artificial),
+        site: None,
+        region: None,
+        site_reflectivity: 0.6,
+        export_mesh: None,
         pairs: Some(1),
         seed: 4,
         out: dir.path().join("out"),
