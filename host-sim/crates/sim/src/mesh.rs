@@ -467,4 +467,31 @@ mod tests {
         assert!(err(bad_index, MeshFormat::Ply).contains("vertex 5"));
         assert!(read_mesh(Path::new("site.dxf")).is_err());
     }
+
+    /// Every prefix and many one-byte changes of valid files: errors or meshes, never a panic
+    /// (the fuzz targets go further).
+    #[test]
+    fn cut_and_corrupted_files_never_panic() {
+        let mesh = square();
+        for format in [MeshFormat::Stl, MeshFormat::Obj, MeshFormat::Ply] {
+            let bytes = to_bytes(&mesh, format);
+            for n in 0..bytes.len() {
+                let _ = parse_mesh(&bytes[..n], format);
+            }
+            for i in 0..bytes.len() {
+                for v in [0u8, b'-', b'9', 0xff] {
+                    let mut b = bytes.clone();
+                    b[i] = v;
+                    if let Ok(m) = parse_mesh(&b, format) {
+                        assert!(m
+                            .triangles
+                            .iter()
+                            .flatten()
+                            .flatten()
+                            .all(|c| c.is_finite()));
+                    }
+                }
+            }
+        }
+    }
 }

@@ -210,8 +210,8 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Output root; samples go to `OUT/<split>/<000000>/`.
-    #[arg(long)]
-    pub out: PathBuf,
+    #[arg(long, required_unless_present = "export_mesh")]
+    pub out: Option<PathBuf>,
     /// Split.
     #[arg(long, value_enum, default_value_t = Split::Train)]
     pub split: Split,
@@ -328,6 +328,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             && args.site_reflectivity <= 1.0,
         "--site-reflectivity must be within (0, 1]"
     );
+    let out = args.out.as_deref().context("give --out")?;
     let (train, test) = kind.paper_split_sizes();
     let pairs = args.pairs.unwrap_or(match args.split {
         Split::Train => train,
@@ -354,7 +355,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             && params.dynamic_range_db <= 200.0,
         "sim params: dynamic_range_db must be within (0, 200]"
     );
-    let split_dir = args.out.join(args.split.name());
+    let split_dir = out.join(args.split.name());
     std::fs::create_dir_all(&split_dir)
         .with_context(|| format!("creating {}", split_dir.display()))?;
     std::fs::write(
@@ -393,7 +394,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 None => simulate_scene(&scene, &params)?,
             };
             write_sample(
-                &sample_dir(&args.out, args.split, i),
+                &sample_dir(out, args.split, i),
                 &data,
                 &params,
                 !args.no_preview,

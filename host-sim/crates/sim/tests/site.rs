@@ -198,7 +198,7 @@ fn site_args(site: &Path, region: Option<PathBuf>, out: &Path) -> SimulateArgs {
         export_mesh: None,
         pairs: Some(2),
         seed: 5,
-        out: out.to_path_buf(),
+        out: Some(out.to_path_buf()),
         split: Split::Test,
         views: 2,
         no_preview: true,
