@@ -431,3 +431,31 @@ pub fn generate(
         }],
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Odd meshes build and cast without panicking: one triangle, many copies of one, zero-area
+    /// ones, huge coordinates.
+    #[test]
+    fn odd_meshes_build_and_cast() {
+        let t = [[0.0, -1.0, -1.0], [0.0, 1.0, -1.0], [0.0, 0.0, 1.0]];
+        let meshes = [
+            vec![t],
+            vec![t; 200],
+            vec![[[0.0; 3]; 3], [[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]], t],
+            vec![[[-3e38, 0.0, 0.0], [3e38, 1.0, 0.0], [0.0, 3e38, 1.0]], t],
+        ];
+        for triangles in meshes {
+            let mesh = SiteMesh::new(&Mesh { triangles });
+            let o = [-1.0, 0.0, 0.0];
+            for d in probe_directions() {
+                assert_eq!(mesh.cast(o, d), mesh.cast_brute_force(o, d));
+            }
+            let hit = mesh.cast(o, [1.0, 0.0, 0.0]);
+            assert!(hit.is_some_and(|(t, _)| (t - 1.0).abs() < 1e-12), "{hit:?}");
+            let _ = in_water(&mesh, [f64::NAN, 0.0, 0.0]);
+        }
+    }
+}
