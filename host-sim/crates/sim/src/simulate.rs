@@ -194,9 +194,9 @@ pub struct SimulateArgs {
     /// 0.3 m, at the procedural scenes' tilts and slant ranges, any heading.
     #[arg(long, requires = "site")]
     pub region: Option<PathBuf>,
-    /// Acoustic reflectivity of the site's every triangle.
-    #[arg(long, default_value_t = 0.6, requires = "site")]
-    pub site_reflectivity: f64,
+    /// Acoustic reflectivity of the site's every triangle; default 0.6.
+    #[arg(long, requires = "site")]
+    pub site_reflectivity: Option<f64>,
     /// Write the scene of sample 0 (of `--seed`, `--split`) as a mesh to this file (.stl
     /// binary, .obj, .ply ASCII) instead of simulating: the tank's floor and walls and its
     /// objects, in its world frame.
@@ -285,6 +285,10 @@ pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
         .collect();
 }
 
+/// Reflectivity of a site's triangles without `--site-reflectivity`: between the tank's floor
+/// (0.25–0.45) and its objects (0.7–1.0).
+pub const SITE_REFLECTIVITY: f64 = 0.6;
+
 /// `simulate --export-mesh FILE`: writes sample 0's scene as a mesh.
 fn export_mesh(kind: SceneKind, args: &SimulateArgs, path: &Path) -> Result<()> {
     let format = crate::mesh::MeshFormat::from_path(path)?;
@@ -318,14 +322,17 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     if let Some(path) = &args.export_mesh {
         return export_mesh(kind, args, path);
     }
+    ensure!(
+        site.is_some() || (args.region.is_none() && args.site_reflectivity.is_none()),
+        "--region and --site-reflectivity need --site"
+    );
     let region = match &args.region {
         Some(p) => Region::load(p)?,
         None => Region::default(),
     };
+    let site_reflectivity = args.site_reflectivity.unwrap_or(SITE_REFLECTIVITY);
     ensure!(
-        args.site_reflectivity.is_finite()
-            && args.site_reflectivity > 0.0
-            && args.site_reflectivity <= 1.0,
+        site_reflectivity.is_finite() && site_reflectivity > 0.0 && site_reflectivity <= 1.0,
         "--site-reflectivity must be within (0, 1]"
     );
     let out = args.out.as_deref().context("give --out")?;
@@ -377,7 +384,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 Some(site) => crate::site::generate(
                     site,
                     &region,
-                    args.site_reflectivity,
+                    site_reflectivity,
                     args.split,
                     args.seed,
                     i,

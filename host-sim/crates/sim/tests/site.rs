@@ -194,7 +194,7 @@ fn site_args(site: &Path, region: Option<PathBuf>, out: &Path) -> SimulateArgs {
         scene: None,
         site: Some(site.to_path_buf()),
         region,
-        site_reflectivity: 0.6,
+        site_reflectivity: None,
         export_mesh: None,
         pairs: Some(2),
         seed: 5,
