@@ -152,8 +152,10 @@ const STL_RECORD: usize = 50;
 /// STL through `stl_io`. A file whose size is exactly that of a binary STL of its count is
 /// binary even when its header begins with `solid ` (as some exporters write), which would
 /// make `stl_io` take it for ASCII: its header, which carries no geometry, is blanked first.
+/// An ASCII file whose solid has no name (`solid` then a line break), which `stl_io` refuses,
+/// is given the space it expects.
 fn parse_stl(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
-    let ascii = bytes.starts_with(b"solid ");
+    let ascii = bytes.starts_with(b"solid") && bytes.get(5).is_some_and(u8::is_ascii_whitespace);
     let binary_count = (bytes.len() >= STL_HEADER)
         .then(|| u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as u64);
     let exact_binary = binary_count.is_some_and(|n| {
@@ -163,6 +165,8 @@ fn parse_stl(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
         let mut copy = bytes.to_vec();
         copy[..6].fill(0);
         copy.into()
+    } else if ascii && bytes[5] != b' ' {
+        [b"solid ".as_slice(), &bytes[5..]].concat().into()
     } else {
         bytes.into()
     };
@@ -428,6 +432,8 @@ mod tests {
                      vertex 1 1 0\nendloop\nendfacet\nendsolid s\n";
         let m = parse_mesh(ascii.as_bytes(), MeshFormat::Stl).unwrap();
         assert_eq!(m.triangles, mesh.triangles[..1]);
+        let unnamed = ascii.replacen("solid s\n", "solid\r\n", 1);
+        assert_eq!(parse_mesh(unnamed.as_bytes(), MeshFormat::Stl).unwrap(), m);
         let mut stl = to_stl(&mesh);
         stl[..6].copy_from_slice(b"solid ");
         assert_eq!(parse_mesh(&stl, MeshFormat::Stl).unwrap(), mesh);
