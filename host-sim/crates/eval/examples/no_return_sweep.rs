@@ -26,8 +26,10 @@ fn main() -> Result<()> {
     let data = PathBuf::from(args.next().context(usage)?);
     let limit = args.next().map(|l| l.parse()).transpose()?;
     let views = epssn_reference::weights::trained_views(&weights)?;
-    let bundle = epssn_reference::weights::load(&weights)?;
-    let folded = floatref::fold_all(&bundle.float)?;
+    // The float weights alone: a training checkpoint has no blob yet.
+    let float =
+        epssn_reference::safetensors_io::load_float_weights(&weights.join("model.safetensors"))?;
+    let folded = floatref::fold_all(&float)?;
     let dir = split_dir(&data, "test").unwrap_or(data);
     let size_in = (
         epssn::config::INPUT_RANGE_BINS,
