@@ -326,6 +326,17 @@ fn generate(spec: &spec::ModelSpec, beam_deg: &[f64], spec_hash: u32) -> String 
         "/// Steps by which the end soft-argmax bins reach beyond the window (spec `end_bin_offset`).\npub const END_BIN_OFFSET: u32 = {offset};"
     )
     .unwrap();
+    let no_return = spec.output.no_return_mass;
+    check(
+        no_return == 0.0 || (no_return > 0.0 && no_return <= 1.0),
+        "no_return_mass must be 0 (no decision) or in (0, 1]",
+    );
+    writeln!(
+        s,
+        "/// `round(τ · 2^16)` of the spec's `no_return_mass` τ: a ray with `e_{{R−1}}·2^16 ≥ τ16·S`\n/// reads exactly r_max (no return), else one with `e_0·2^16 ≥ τ16·S` reads exactly r_min;\n/// 0 decides nothing.\npub const NO_RETURN_MASS_Q16: u32 = {};\n/// The spec's `no_return_mass` τ (0: no decision).\npub const NO_RETURN_MASS: f64 = {no_return:?};",
+        q16(no_return)
+    )
+    .unwrap();
     writeln!(
         s,
         "/// Rotator lever arm, metres.\npub const LEVER_ARM_M: [f64; 3] = {:?};",

@@ -11,7 +11,9 @@
 # from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random;
 # LR sets the learning rate before its halving (default: the spec's), e.g. to fine-tune;
 # CALIB_SAMPLES (default 256) sets the quantiser's calibration samples; CE_WEIGHT adds the
-# two-hot cross-entropy term to the loss (`train --ce-weight`, docs/ACCURACY.md).
+# two-hot cross-entropy term to the loss (`train --ce-weight`, docs/ACCURACY.md); NO_RETURN_WEIGHT
+# adds the no-return term (`train --no-return-weight`: the end bins' mass against the label's
+# "met nothing" / "nearer than the window", what the spec's `no_return_mass` decides on).
 # VIEWS=3 trains a three-view model (rolls 0, +7, +14 degrees; give it a DATA_ROOT of its own,
 # the data are simulated with the third view): the manifest and the blob record the count, and
 # eval, run and the firmware's pairing follow it.
@@ -61,7 +63,8 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 # --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
-  --val-limit $((3 * val_n)) --resume --out "$weights" "${views[@]}" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"} ${CE_WEIGHT:+--ce-weight "$CE_WEIGHT"}
+  --val-limit $((3 * val_n)) --resume --out "$weights" "${views[@]}" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"} ${CE_WEIGHT:+--ce-weight "$CE_WEIGHT"} \
+  ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples "$calib_n" --percentile 99.99 \
   --search --search-passes "$passes" --search-pixels "$pixels"
 for scene in "${scenes[@]}"; do

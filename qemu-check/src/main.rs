@@ -160,6 +160,7 @@ fn main() -> ! {
         r_min16: U16F16::from_num(config::R_MIN_M),
         step16: U16F16::from_num((config::R_MAX_M - config::R_MIN_M) / 63.0),
         end_offset: config::END_BIN_OFFSET as u16,
+        no_return16: config::NO_RETURN_MASS_Q16,
     };
     let head = &config::LAYER_HEAD;
     let hs = ConvShape::from(head);

@@ -141,6 +141,14 @@ pub struct OutputSpec {
     /// otherwise). 0 (the default) is the plain soft-argmax.
     #[serde(default)]
     pub end_bin_offset: u16,
+    /// The no-return decision: a ray whose soft-argmax mass in the last bin is at least this
+    /// fraction met nothing inside the window and reads exactly `r_max`; otherwise one whose
+    /// mass in the first bin is at least this fraction met a surface nearer than the window
+    /// and reads exactly `r_min`. In `(0, 1]`; 0 (the default) decides nothing, every ray
+    /// reads its soft-argmax. The integer rule is `e_{R−1}·2^16 ≥ τ16·S` with
+    /// `τ16 = round(τ·2^16)` (docs/QUANTISATION.md "No-return decision").
+    #[serde(default)]
+    pub no_return_mass: f64,
 }
 
 /// Warp table precision.

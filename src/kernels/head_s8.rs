@@ -873,7 +873,10 @@ mod tests {
                 relu: case % 3 == 1,
             };
             let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
-            let soft = soft_params(&exp, rng.below(6) as u16);
+            let mut soft = soft_params(&exp, rng.below(6) as u16);
+            if case % 2 == 1 {
+                soft.no_return16 = 1 + rng.below(1 << 16) as u32;
+            }
             let [rows, bins, columns] = shape.out_size;
             let mut logits = vec![0i8; rows * bins * columns];
             conv_transpose3d_s8_plain(shape, &input, &cp, Skip::None, &mut logits).unwrap();
@@ -991,6 +994,7 @@ mod tests {
                 r_min16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
                 step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
                 end_offset: rng.below(300) as u16,
+                no_return16: rng.next() as u32 >> rng.below(32),
             };
             let ni = rng.below(300);
             let input = rng.i8s(ni);

@@ -139,6 +139,11 @@ pub enum KernelError {
         /// The offset given.
         offset: u16,
     },
+    /// The soft-argmax's no-return fraction is above 1 (`2^16` in Q16).
+    NoReturnMass {
+        /// The fraction given, Q16.
+        mass16: u32,
+    },
     /// The fused head needs kernel == stride, no padding and one output channel.
     NotStreamableHead,
     /// [`CheckedParams`] used with a kernel size, channel counts or direction other than the
@@ -644,6 +649,7 @@ pub(crate) mod testutil {
             r_min16: U16F16::from_bits(libm::round(base * 65536.0) as u32),
             step16: U16F16::from_bits(libm::round(step * 65536.0) as u32),
             end_offset,
+            no_return16: 0,
         }
     }
 
@@ -812,6 +818,7 @@ mod no_panic {
                 r_min16: U16F16::from_bits(rng.next() as u32),
                 step16: U16F16::from_bits(rng.next() as u32 >> rng.below(32)),
                 end_offset: rng.below(300) as u16,
+                no_return16: rng.next() as u32 >> rng.below(32),
             };
             let mut depth = vec![U16F16::ZERO; rng.below(20)];
             let _ = head_soft_argmax_s8(&shape, input, &params, &sp, &mut depth);
@@ -878,6 +885,7 @@ mod no_panic {
             r_min16: U16F16::ZERO,
             step16: U16F16::ZERO,
             end_offset: 0,
+            no_return16: 0,
         };
         assert_eq!(soft_argmax_s8(&ss, &[], &sp, &mut []), Ok(()));
     }

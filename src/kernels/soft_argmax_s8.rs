@@ -9,6 +9,11 @@
 //! `[r_min16 + K·step16, r_min16 + (R − 1 + K)·step16]` → depth `[E][A]` as [`U16F16`] metres.
 //! With `K = 0` this is the plain soft-argmax and the clamp never acts.
 //!
+//! The no-return decision comes first: with `τ16 > 0`, a ray with `e_{R−1}·2^16 ≥ τ16·S` met
+//! nothing and reads exactly the window's top `r_min16 + (R − 1 + K)·step16`; else one with
+//! `e_0·2^16 ≥ τ16·S` met a surface nearer than the window and reads exactly its bottom
+//! `r_min16 + K·step16`. The depth code is the mask: no bit travels beside it.
+//!
 //! Work: `E · A · R` table look-ups and `E · A · R` multiplies, one u64 division per ray.
 
 use super::{check_conv_transpose, finish, mul3, ConvParams, ConvShape, KernelError, Operand};
@@ -42,10 +47,16 @@ pub struct SoftArgmaxParams<'a> {
     /// `K`: steps by which the first and last bins reach beyond the window (the spec's
     /// `end_bin_offset`; at most [`MAX_END_OFFSET`]).
     pub end_offset: u16,
+    /// `τ16 = round(τ · 2^16)`: the end-bin mass at which a ray is decided to have met nothing
+    /// inside the window (the spec's `no_return_mass`; at most `2^16`, 0 decides nothing).
+    pub no_return16: u32,
 }
 
 /// Largest [`SoftArgmaxParams::end_offset`].
 pub const MAX_END_OFFSET: u16 = 256;
+
+/// Largest [`SoftArgmaxParams::no_return16`]: the whole mass.
+pub const MAX_NO_RETURN16: u32 = 1 << 16;
 
 pub(super) fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), KernelError> {
     if bins == 0 || bins > MAX_BINS {
@@ -57,6 +68,11 @@ pub(super) fn check_params(p: &SoftArgmaxParams<'_>, bins: usize) -> Result<(), 
     if p.end_offset > MAX_END_OFFSET {
         return Err(KernelError::EndOffset {
             offset: p.end_offset,
+        });
+    }
+    if p.no_return16 > MAX_NO_RETURN16 {
+        return Err(KernelError::NoReturnMass {
+            mass16: p.no_return16,
         });
     }
     // b16 ≤ (bins − 1 + 2K)·2^16, so this is the largest depth any ray can produce.
@@ -99,16 +115,26 @@ pub(super) fn depth_of(
     // stays far inside u64 (T < 2^32, K ≤ 256, S < 2^24).
     let s64 = s as u64;
     let k = p.end_offset as u64;
+    let step = p.step16.to_bits() as u64;
+    let base = p.r_min16.to_bits() as u64;
+    let lo = base + k * step;
+    let hi = base + (bins as u64 - 1 + k) * step;
+    if p.no_return16 != 0 {
+        // e ≤ S < 2^24 and τ16 ≤ 2^16: both sides fit u64 (one UMULL on Cortex-M).
+        let tau = p.no_return16 as u64 * s64;
+        if (last as u64) << 16 >= tau {
+            return U16F16::from_bits(hi as u32);
+        }
+        if (first as u64) << 16 >= tau {
+            return U16F16::from_bits(lo as u32);
+        }
+    }
     let t = t as u64 + k * (s64 - first as u64 + last as u64);
     let b16 = match u32::try_from(t) {
         Ok(t) if s < 1 << 24 => round_div16(t, s.max(1)),
         _ => (t << 16).wrapping_add(s64 / 2) / s64.max(1),
     };
-    let step = p.step16.to_bits() as u64;
-    let base = p.r_min16.to_bits() as u64;
     let d = base + ((b16 * step + (1 << 15)) >> 16);
-    let lo = base + k * step;
-    let hi = base + (bins as u64 - 1 + k) * step;
     U16F16::from_bits(d.clamp(lo, hi) as u32)
 }
 
@@ -515,7 +541,11 @@ mod tests {
                 columns: 1 + rng.below(150),
             };
             let exp = exp_table(0.01 + rng.below(100) as f64 * 0.01);
-            let p = soft_params(&exp, rng.below(12) as u16);
+            let mut p = soft_params(&exp, rng.below(12) as u16);
+            // Every other case decides no-returns, at thresholds from a sliver to the whole mass.
+            if case % 2 == 1 {
+                p.no_return16 = 1 + rng.below(1 << 16) as u32;
+            }
             let n = shape.rows * shape.bins * shape.columns;
             let logits = rng.i8s(n);
             let rays = shape.rows * shape.columns;
@@ -640,6 +670,52 @@ mod tests {
     }
 
     #[test]
+    fn no_return_decision_reads_the_window_ends_exactly() {
+        let exp = exp_table(0.2);
+        let bins = 8;
+        let shape = SoftArgmaxShape {
+            rows: 1,
+            bins,
+            columns: 5,
+        };
+        let mut p = soft_params(&exp, 4);
+        let (lo, hi) = (
+            p.r_min16.to_bits() + 4 * p.step16.to_bits(),
+            p.r_min16.to_bits() + (bins as u32 - 1 + 4) * p.step16.to_bits(),
+        );
+        // Rays (columns): mass on the last bin; on the first; on bin 3; last and first
+        // equal (far wins); spread evenly (no end holds half).
+        let mut logits = [0i8; 8 * 5];
+        let mut set = |bin: usize, col: usize, v: i8| logits[bin * 5 + col] = v;
+        set(bins - 1, 0, 100);
+        set(0, 1, 100);
+        set(3, 2, 100);
+        set(0, 3, 100);
+        set(bins - 1, 3, 100);
+        let run = |p: &SoftArgmaxParams<'_>| {
+            let mut d = [U16F16::ZERO; 5];
+            soft_argmax_s8(&shape, &logits, p, &mut d).unwrap();
+            let mut plain = [U16F16::ZERO; 5];
+            soft_argmax_s8_plain(&shape, &logits, p, &mut plain).unwrap();
+            assert_eq!(d, plain);
+            d.map(|x| x.to_bits())
+        };
+        let soft = run(&p);
+        p.no_return16 = 1 << 15;
+        let decided = run(&p);
+        assert_eq!(decided[0], hi);
+        assert_eq!(decided[1], lo);
+        assert_eq!(decided[2], soft[2]);
+        assert_eq!(decided[3], hi);
+        assert_eq!(decided[4], soft[4]);
+        assert!(soft[2] > lo && soft[2] < hi);
+        assert!(soft[4] > lo && soft[4] < hi);
+        // A threshold above the end's mass decides nothing.
+        p.no_return16 = MAX_NO_RETURN16;
+        assert_eq!(run(&p)[2..], soft[2..]);
+    }
+
+    #[test]
     fn errors() {
         let exp = [0u16; 256];
         let p = SoftArgmaxParams {
@@ -647,6 +723,7 @@ mod tests {
             r_min16: U16F16::ZERO,
             step16: U16F16::ZERO,
             end_offset: 0,
+            no_return16: 0,
         };
         let s = SoftArgmaxShape {
             rows: 1,
@@ -682,6 +759,16 @@ mod tests {
             soft_argmax_s8(&s, &[0, 0], &far, &mut d),
             Err(KernelError::EndOffset {
                 offset: MAX_END_OFFSET + 1
+            })
+        );
+        let whole = SoftArgmaxParams {
+            no_return16: MAX_NO_RETURN16 + 1,
+            ..p
+        };
+        assert_eq!(
+            soft_argmax_s8(&s, &[0, 0], &whole, &mut d),
+            Err(KernelError::NoReturnMass {
+                mass16: MAX_NO_RETURN16 + 1
             })
         );
         // The end bins' reach counts towards the overflow check.

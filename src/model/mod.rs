@@ -357,6 +357,7 @@ impl<'a> Model<'a> {
             r_min16: U16F16::from_bits(config::R_MIN_Q16),
             step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
             end_offset: config::END_BIN_OFFSET as u16,
+            no_return16: config::NO_RETURN_MASS_Q16,
         }
     }
 }

@@ -18,8 +18,28 @@ pub struct FloatTrace {
     pub features: Vec<BTreeMap<String, Vec<f32>>>,
     /// The cost volume ("cost") and every cost-net output, head logits included.
     pub cost_net: BTreeMap<String, Vec<f32>>,
-    /// Depth `[E][A]`, metres.
+    /// Depth `[E][A]`, metres: the soft-argmax clamped to the window, or exactly `r_max`
+    /// (`r_min`) where the no-return decision says the ray met nothing (something nearer).
     pub depth: Vec<f32>,
+    /// The soft-argmax before the decision (clamped to the window), `[E][A]`, metres.
+    pub soft_depth: Vec<f32>,
+    /// Softmax mass of each ray's last bin, `[E][A]`.
+    pub far_mass: Vec<f32>,
+    /// Softmax mass of each ray's first bin, `[E][A]`.
+    pub near_mass: Vec<f32>,
+}
+
+/// The no-return decision on one ray at threshold `tau` (the spec's `no_return_mass`; 0
+/// decides nothing): `r_max` when the last bin holds at least `tau` of the mass, else `r_min`
+/// when the first does, else the soft-argmax `soft`.
+pub fn decide(soft: f32, near_mass: f32, far_mass: f32, tau: f64) -> f32 {
+    if tau > 0.0 && far_mass as f64 >= tau {
+        config::R_MAX_M as f32
+    } else if tau > 0.0 && near_mass as f64 >= tau {
+        config::R_MIN_M as f32
+    } else {
+        soft
+    }
 }
 
 fn conv(l: &LayerShape, x: &[f32], w: &[f64], b: &[f64]) -> Vec<f32> {
@@ -262,6 +282,9 @@ pub fn run_folded(
         config::DEPTH_COLUMNS,
     );
     trace.depth = vec![0f32; e * a];
+    trace.soft_depth = vec![0f32; e * a];
+    trace.far_mass = vec![0f32; e * a];
+    trace.near_mass = vec![0f32; e * a];
     for row in 0..e {
         for col in 0..a {
             let logit = |i: usize| x[(row * r + i) * a + col];
@@ -272,8 +295,14 @@ pub fn run_folded(
                 s += p;
                 t += p * config::DEPTH_BIN_RANGE_M[i];
             }
+            let at = row * a + col;
             // The end bins may reach beyond the window; the depth is clamped to it.
-            trace.depth[row * a + col] = (t / s).clamp(config::R_MIN_M, config::R_MAX_M) as f32;
+            let soft = (t / s).clamp(config::R_MIN_M, config::R_MAX_M) as f32;
+            let mass = |i: usize| (((logit(i) - m) as f64).exp() / s) as f32;
+            trace.soft_depth[at] = soft;
+            trace.near_mass[at] = mass(0);
+            trace.far_mass[at] = mass(r - 1);
+            trace.depth[at] = decide(soft, mass(0), mass(r - 1), config::NO_RETURN_MASS);
         }
     }
     Ok(trace)

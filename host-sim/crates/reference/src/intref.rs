@@ -323,7 +323,9 @@ pub fn exp_table(logit_scale: f64) -> [u16; 256] {
 /// with the bin index `j_i = i + K` (`j_0 = 0`, `j_{R−1} = R − 1 + 2K`: the end bins reach
 /// `K = end_offset` steps beyond the window), `T = Σ e_i·j_i`, `b16 = (T·2^16 + S/2) / S`,
 /// `d16 = r_min16 + (b16·step16 + 2^15) >> 16`, clamped to the window
-/// `[r_min16 + K·step16, r_min16 + (R − 1 + K)·step16]`.
+/// `[r_min16 + K·step16, r_min16 + (R − 1 + K)·step16]`. With `no_return16 = τ16 > 0`
+/// (QUANTISATION.md "No-return decision") a ray with `e_{R−1}·2^16 ≥ τ16·S` reads the
+/// window's top exactly, else one with `e_0·2^16 ≥ τ16·S` its bottom.
 #[allow(clippy::too_many_arguments)]
 pub fn soft_argmax(
     logits: &[i8],
@@ -334,6 +336,7 @@ pub fn soft_argmax(
     r_min16: u32,
     step16: u32,
     end_offset: u32,
+    no_return16: u32,
 ) -> Vec<u32> {
     assert_eq!(logits.len(), rows * bins * cols);
     let k = end_offset as u128;
@@ -355,12 +358,20 @@ pub fn soft_argmax(
             let m = *ray.iter().max().expect("at least one bin");
             let weights: Vec<u128> = ray.iter().map(|&q| exp[(m - q) as usize] as u128).collect();
             let s: u128 = weights.iter().sum();
-            let t: u128 = weights.iter().enumerate().map(|(i, &x)| x * index(i)).sum();
-            let b16 = (t * 65536 + s / 2) / s;
-            let d = r_min16 as u128 + ((b16 * step16 as u128 + 32768) >> 16);
             let lo = r_min16 as u128 + k * step16 as u128;
             let hi = r_min16 as u128 + ((bins - 1) as u128 + k) * step16 as u128;
-            depth.push(u32::try_from(d.clamp(lo, hi)).expect("depth fits U16F16"));
+            let tau = no_return16 as u128 * s;
+            let d = if no_return16 > 0 && weights[bins - 1] * 65536 >= tau {
+                hi
+            } else if no_return16 > 0 && weights[0] * 65536 >= tau {
+                lo
+            } else {
+                let t: u128 = weights.iter().enumerate().map(|(i, &x)| x * index(i)).sum();
+                let b16 = (t * 65536 + s / 2) / s;
+                let d = r_min16 as u128 + ((b16 * step16 as u128 + 32768) >> 16);
+                d.clamp(lo, hi)
+            };
+            depth.push(u32::try_from(d).expect("depth fits U16F16"));
         }
     }
     depth

@@ -208,6 +208,7 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         config::R_MIN_Q16,
         config::DEPTH_STEP_Q16,
         config::END_BIN_OFFSET,
+        config::NO_RETURN_MASS_Q16,
     );
     Ok(trace)
 }

@@ -199,13 +199,16 @@ fn check_convt(
     want
 }
 
-fn soft_params(exp: &[u16; 256], end_offset: u32) -> SoftArgmaxParams<'_> {
+/// The build's grid with end bins reaching `end_offset` steps out and the no-return
+/// threshold `no_return16`.
+fn soft_params(exp: &[u16; 256], end_offset: u32, no_return16: u32) -> SoftArgmaxParams<'_> {
     let (r_min16, step16) = depth_grid(end_offset);
     SoftArgmaxParams {
         exp,
         r_min16: U16F16::from_bits(r_min16),
         step16: U16F16::from_bits(step16),
         end_offset: end_offset as u16,
+        no_return16,
     }
 }
 
@@ -227,10 +230,19 @@ fn depth_grid_matches_the_build() {
 
 /// Library soft-argmax (optimised, plain) vs reference; returns the depth bits.
 fn check_soft(logits: &[i8], rows: usize, bins: usize, cols: usize, exp: &[u16; 256]) -> Vec<u32> {
-    check_soft_k(logits, rows, bins, cols, exp, config::END_BIN_OFFSET)
+    check_soft_k(
+        logits,
+        rows,
+        bins,
+        cols,
+        exp,
+        config::END_BIN_OFFSET,
+        config::NO_RETURN_MASS_Q16,
+    )
 }
 
-/// [`check_soft`] with end bins reaching `k` steps beyond the window.
+/// [`check_soft`] with end bins reaching `k` steps beyond the window and no-return
+/// threshold `tau16`.
 fn check_soft_k(
     logits: &[i8],
     rows: usize,
@@ -238,15 +250,16 @@ fn check_soft_k(
     cols: usize,
     exp: &[u16; 256],
     k: u32,
+    tau16: u32,
 ) -> Vec<u32> {
     let (r_min16, step16) = depth_grid(k);
-    let want = intref::soft_argmax(logits, rows, bins, cols, exp, r_min16, step16, k);
+    let want = intref::soft_argmax(logits, rows, bins, cols, exp, r_min16, step16, k, tau16);
     let shape = SoftArgmaxShape {
         rows,
         bins,
         columns: cols,
     };
-    let p = soft_params(exp, k);
+    let p = soft_params(exp, k, tau16);
     let (mut a, mut b) = (
         vec![U16F16::ZERO; rows * cols],
         vec![U16F16::ZERO; rows * cols],
@@ -266,13 +279,14 @@ fn check_head(sh: &Shape, input: &[i8], l: &Layer, exp: &[u16; 256], what: &str)
     let k = config::END_BIN_OFFSET;
     let (r_min16, step16) = depth_grid(k);
     let [rows, bins, cols] = sh.n_out;
-    let want = intref::soft_argmax(&logits, rows, bins, cols, exp, r_min16, step16, k);
+    let tau16 = config::NO_RETURN_MASS_Q16;
+    let want = intref::soft_argmax(&logits, rows, bins, cols, exp, r_min16, step16, k, tau16);
     let mut d = vec![U16F16::ZERO; rows * cols];
     epssn::kernels::head_s8::head_s8(
         &conv_shape(sh),
         input,
         &params(l, 0, false),
-        &soft_params(exp, config::END_BIN_OFFSET),
+        &soft_params(exp, config::END_BIN_OFFSET, tau16),
         &mut d,
     )
     .unwrap();
@@ -762,7 +776,7 @@ fn soft_argmax_on_extreme_logits() {
         let (r_min16, step16) = depth_grid(k);
         // All equal (any value): every ray reads the middle of the window.
         for v in [-128i8, 0, 127] {
-            let d = check_soft_k(&vec![v; n], rows, bins, cols, &exp, k);
+            let d = check_soft_k(&vec![v; n], rows, bins, cols, &exp, k, 0);
             // The mean of the bins' positions (index 0, interior i + K, last bins − 1 + 2K) is
             // index (bins − 1) / 2 + K on the Q16.16 grid: the window's middle, up to the grid's
             // rounding (step16 is rounded once, so the error grows with the bin count).
@@ -790,7 +804,7 @@ fn soft_argmax_on_extreme_logits() {
                 logits[(e * bins + bin) * cols + a] = 127;
             }
         }
-        let d = check_soft_k(&logits, rows, bins, cols, &exp, k);
+        let d = check_soft_k(&logits, rows, bins, cols, &exp, k, 0);
         for e in 0..rows {
             for a in 0..cols {
                 let bin = ((e * 7 + a * 3) % bins) as u32;
@@ -806,7 +820,7 @@ fn soft_argmax_on_extreme_logits() {
                 logits[(e * bins + bins - 2) * cols + a] = 127;
             }
         }
-        let d = check_soft_k(&logits, rows, bins, cols, &exp, k);
+        let d = check_soft_k(&logits, rows, bins, cols, &exp, k, 0);
         let top = r_min16 + (bins as u32 - 1 + k) * step16;
         let want = if k == 0 { top - step16 / 2 } else { top };
         assert!(
@@ -817,7 +831,39 @@ fn soft_argmax_on_extreme_logits() {
         // Alternating and noise only need to agree.
         let mut rng = Rng(1 + k as u64);
         for (_, p) in patterns(&mut rng, n) {
-            check_soft_k(&p, rows, bins, cols, &exp, k);
+            check_soft_k(&p, rows, bins, cols, &exp, k, 0);
+        }
+    }
+}
+
+#[test]
+fn soft_argmax_no_return_decision_matches_the_reference() {
+    let (rows, bins, cols) = (
+        config::DEPTH_ROWS,
+        config::DEPTH_RANGE_BINS,
+        config::DEPTH_COLUMNS,
+    );
+    let n = rows * bins * cols;
+    let exp = intref::exp_table(0.08);
+    let mut rng = Rng(0x0e7d);
+    // Thresholds from a sliver to the whole mass, the build's among them; logits with their
+    // largest values often in an end bin, so both decisions and their ties are met.
+    let thresholds = [1, 1 << 14, 1 << 15, 1 << 16, config::NO_RETURN_MASS_Q16];
+    for tau16 in thresholds.into_iter().filter(|&t| t > 0) {
+        for (_, mut p) in patterns(&mut rng, n) {
+            for e in 0..rows {
+                for a in 0..cols {
+                    let end = [0, bins - 1][rng.below(2)];
+                    if rng.below(3) == 0 {
+                        p[(e * bins + end) * cols + a] = 127 - rng.below(20) as i8;
+                    }
+                }
+            }
+            let k = config::END_BIN_OFFSET;
+            let d = check_soft_k(&p, rows, bins, cols, &exp, k, tau16);
+            let (base, step) = depth_grid(k);
+            let (lo, hi) = (base + k * step, base + (bins as u32 - 1 + k) * step);
+            assert!(d.iter().all(|&x| x >= lo && x <= hi));
         }
     }
 }

@@ -5,7 +5,8 @@
 //! cargo run --release -p epssn-train --example float_agreement -- weights/general DATA [LIMIT]
 //! ```
 //!
-//! Prints the largest and mean per-pixel difference (mm) and the two models' all-pixel MAE.
+//! Prints the largest and mean per-pixel difference (mm) and the two models' all-pixel MAE,
+//! both on the soft-argmax before the no-return decision (the burn model's training output).
 
 use std::path::PathBuf;
 
@@ -31,7 +32,7 @@ fn main() -> Result<()> {
         let burn = model.predict_batch(&[s.views.as_slice()])?.remove(0);
         let views: Vec<&[u8]> = s.views.iter().map(Vec::as_slice).collect();
         let reference = epssn_reference::floatref::run_folded(&folded, &views, &mut |_, _| {})?;
-        for (a, b) in burn.iter().zip(&reference.depth) {
+        for (a, b) in burn.iter().zip(&reference.soft_depth) {
             let d = 1000.0 * (a - b).abs() as f64;
             largest = largest.max(d);
             sum += d;
@@ -39,7 +40,7 @@ fn main() -> Result<()> {
         }
         let mask = epssn_sim::metrics::mask_from_f32(&s.mask);
         mae_burn += epssn_sim::metrics::evaluate(&burn, &s.depth, &mask)?.mae;
-        mae_ref += epssn_sim::metrics::evaluate(&reference.depth, &s.depth, &mask)?.mae;
+        mae_ref += epssn_sim::metrics::evaluate(&reference.soft_depth, &s.depth, &mask)?.mae;
     }
     let maps = set.len().max(1) as f64;
     println!(

@@ -74,6 +74,12 @@ pub struct TrainArgs {
     /// same weight.
     #[arg(long, default_value_t = 0.0)]
     pub ce_weight: f64,
+    /// Weight of the no-return term (train.rs): the binary cross-entropy of each ray's last
+    /// (first) bin mass against "met nothing" ("met something nearer") in its label; with it
+    /// the two-hot labels of out-of-window pixels sit on the end bins. 0: no such term. A
+    /// resumed run must pass the same weight.
+    #[arg(long, default_value_t = 0.0)]
+    pub no_return_weight: f64,
 }
 
 /// One row of the loss history.
@@ -109,6 +115,9 @@ struct TrainState {
     /// The cross-entropy term's weight; 0 in checkpoints written before `--ce-weight`.
     #[serde(default)]
     ce_weight: f64,
+    /// The no-return term's weight; 0 in checkpoints written before `--no-return-weight`.
+    #[serde(default)]
+    no_return_weight: f64,
 }
 
 fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
@@ -202,6 +211,7 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
         views,
         lr: None,
         ce_weight: 0.0,
+        no_return_weight: 0.0,
     })
 }
 
@@ -261,6 +271,11 @@ impl Plan {
             "--ce-weight must be 0 or positive, not {}",
             args.ce_weight
         );
+        ensure!(
+            args.no_return_weight.is_finite() && args.no_return_weight >= 0.0,
+            "--no-return-weight must be 0 or positive, not {}",
+            args.no_return_weight
+        );
         let out = args
             .out
             .clone()
@@ -315,6 +330,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     std::fs::create_dir_all(&plan.out)?;
     let (mut trainer, mut state) = start_or_resume(args, &plan)?;
     trainer.ce_weight = args.ce_weight as f32;
+    trainer.no_return_weight = args.no_return_weight as f32;
     run_epochs(args, &plan, &mut trainer, &mut state, started)?;
 
     let mut meta = HashMap::new();
@@ -341,6 +357,7 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
         epochs: args.epochs,
         lr: Some(lr),
         ce_weight: args.ce_weight,
+        no_return_weight: args.no_return_weight,
         ..state
     };
     if args.resume && ckpt.join("state.json").exists() {
@@ -361,6 +378,11 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
             state.ce_weight == args.ce_weight,
             "checkpoint was made with --ce-weight {}: pass the same weight",
             state.ce_weight
+        );
+        ensure!(
+            state.no_return_weight == args.no_return_weight,
+            "checkpoint was made with --no-return-weight {}: pass the same weight",
+            state.no_return_weight
         );
         let tensors = load_safetensors(&ckpt.join(WEIGHTS_FILE))?;
         let t = Trainer::from_checkpoint(spec, &tensors, Some(&ckpt.join("optim.bpk")), views)?;
@@ -410,6 +432,7 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
         views,
         lr: Some(lr),
         ce_weight: args.ce_weight,
+        no_return_weight: args.no_return_weight,
     };
     Ok((t, s))
 }
@@ -509,18 +532,31 @@ fn manifest(args: &TrainArgs, plan: &Plan, state: &TrainState) -> serde_json::Va
         "steps": state.global_step,
         "lr": plan.lr,
         "lr_halved_at_step": (spec.training.lr_halved_at_fraction * plan.total_steps as f64).ceil() as usize,
-        "loss": if args.ce_weight > 0.0 {
-            "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)| + ce_weight * mean over pixels of w*CE(two-hot(clamp(d)), softmax over range bins), w = lambda on mask pixels, 1 elsewhere; val_loss is the first term"
-        } else {
-            "mean over pixels of w*|d_hat - clamp(d, r_min, r_max)|, w = lambda on mask pixels, 1 elsewhere"
-        },
+        "loss": loss_text(args),
         "lambda": spec.training.lambda,
         "ce_weight": args.ce_weight,
+        "no_return_weight": args.no_return_weight,
         "final_train_loss": last.map(|r| r.train_loss),
         "final_val_loss": last.map(|r| r.val_loss),
         "wall_time_s": state.elapsed_s,
         "weights": WEIGHTS_FILE,
     })
+}
+
+/// The training loss's formula as the manifest states it.
+fn loss_text(args: &TrainArgs) -> String {
+    let mut s = String::from("mean over pixels of w*|d_hat - clamp(d, r_min, r_max)|");
+    if args.ce_weight > 0.0 {
+        s += " + ce_weight * mean over pixels of w*CE(two-hot(clamp(d)), softmax over range bins)";
+    }
+    if args.no_return_weight > 0.0 {
+        s += " + no_return_weight * mean over pixels of w*(BCE(p_last, d >= r_max) + BCE(p_first, d <= r_min)), the two-hot of an out-of-window label on its end bin";
+    }
+    s += ", w = lambda on mask pixels, 1 elsewhere";
+    if args.ce_weight > 0.0 || args.no_return_weight > 0.0 {
+        s += "; val_loss is the first term";
+    }
+    s
 }
 
 fn bench(
