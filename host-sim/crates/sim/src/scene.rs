@@ -473,49 +473,125 @@ fn draw_tank(rng: &mut ChaCha8Rng) -> (SonarPose, Vec<Object>) {
         if x > far - 0.3 || y > left - 0.3 || y < -right + 0.3 {
             continue;
         }
-        let yaw = uniform(rng, 0.0, 180.0);
-        let pick = rng.random::<f64>();
-        let object = if pick < 0.4 {
-            let s = uniform(rng, 0.9, 1.1);
-            let size = if rng.random::<bool>() {
-                [0.22 * s, 0.11 * s, 0.065 * s] // flat
-            } else {
-                [0.22 * s, 0.065 * s, 0.11 * s] // on edge
-            };
-            Object::Block {
-                name: "brick".into(),
-                base_center_m: [x, y, 0.0],
-                size_m: size,
-                yaw_deg: yaw,
-                reflectivity: uniform(rng, 0.7, 0.9),
-            }
-        } else if pick < 0.75 {
-            let size = if rng.random::<bool>() {
-                [0.39, 0.19, 0.19]
-            } else {
-                [uniform(rng, 0.25, 0.45), uniform(rng, 0.25, 0.4), 0.15]
-            };
-            Object::Block {
-                name: "concrete_block".into(),
-                base_center_m: [x, y, 0.0],
-                size_m: size,
-                yaw_deg: yaw,
-                reflectivity: uniform(rng, 0.8, 1.0),
-            }
-        } else {
-            let span = uniform(rng, 0.35, 0.6);
-            let height = uniform(rng, 0.25, 0.4);
-            Object::Arch {
-                base_center_m: [x, y, 0.0],
-                size_m: [span, uniform(rng, 0.15, 0.3), height],
-                opening_radius_m: (span / 2.0).min(height) * uniform(rng, 0.5, 0.7),
-                yaw_deg: yaw,
-                reflectivity: uniform(rng, 0.8, 1.0),
-            }
-        };
-        objects.push(object);
+        objects.push(draw_tank_object(rng, x, y));
     }
     (pose, objects)
+}
+
+/// One of the tank's objects (brick, concrete block or arch) standing on the floor at (x, y),
+/// any heading.
+fn draw_tank_object(rng: &mut ChaCha8Rng, x: f64, y: f64) -> Object {
+    let yaw = uniform(rng, 0.0, 180.0);
+    let pick = rng.random::<f64>();
+    if pick < 0.4 {
+        let s = uniform(rng, 0.9, 1.1);
+        let size = if rng.random::<bool>() {
+            [0.22 * s, 0.11 * s, 0.065 * s] // flat
+        } else {
+            [0.22 * s, 0.065 * s, 0.11 * s] // on edge
+        };
+        Object::Block {
+            name: "brick".into(),
+            base_center_m: [x, y, 0.0],
+            size_m: size,
+            yaw_deg: yaw,
+            reflectivity: uniform(rng, 0.7, 0.9),
+        }
+    } else if pick < 0.75 {
+        let size = if rng.random::<bool>() {
+            [0.39, 0.19, 0.19]
+        } else {
+            [uniform(rng, 0.25, 0.45), uniform(rng, 0.25, 0.4), 0.15]
+        };
+        Object::Block {
+            name: "concrete_block".into(),
+            base_center_m: [x, y, 0.0],
+            size_m: size,
+            yaw_deg: yaw,
+            reflectivity: uniform(rng, 0.8, 1.0),
+        }
+    } else {
+        let span = uniform(rng, 0.35, 0.6);
+        let height = uniform(rng, 0.25, 0.4);
+        Object::Arch {
+            base_center_m: [x, y, 0.0],
+            size_m: [span, uniform(rng, 0.15, 0.3), height],
+            opening_radius_m: (span / 2.0).min(height) * uniform(rng, 0.5, 0.7),
+            yaw_deg: yaw,
+            reflectivity: uniform(rng, 0.8, 1.0),
+        }
+    }
+}
+
+/// Floor of the fixed tank `simulate --export-mesh --whole-tank` writes: x, y extent, metres.
+pub const WHOLE_TANK_FLOOR_M: [[f64; 2]; 2] = [[-1.0, 6.0], [-3.0, 3.0]];
+/// Objects on that floor.
+pub const WHOLE_TANK_OBJECTS: usize = 48;
+/// Least distance between two objects' centres and from an object's centre to a wall, metres.
+pub const WHOLE_TANK_SPACING_M: f64 = 0.6;
+
+/// A fixed tank for a site (`simulate --export-mesh --whole-tank`): the artificial generator's
+/// floor, walls and objects, the objects spread over the whole floor rather than inside one
+/// sample's range window, so that poses drawn anywhere in the tank see some of them.
+pub fn whole_tank(seed: u64) -> Scene {
+    let mut rng = ChaCha8Rng::seed_from_u64(mix64(seed ^ 0x7a4e_5175_7e11_7a2c));
+    let [[x0, x1], [y0, y1]] = WHOLE_TANK_FLOOR_M;
+    let wall = |point_m: [f64; 3], normal: [f64; 3], reflectivity: f64| Object::Plane {
+        name: "wall".into(),
+        point_m,
+        normal,
+        reflectivity,
+    };
+    let mut objects = vec![
+        Object::Plane {
+            name: "floor".into(),
+            point_m: [0.0; 3],
+            normal: [0.0, 0.0, 1.0],
+            reflectivity: uniform(&mut rng, 0.25, 0.45),
+        },
+        wall(
+            [x1, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            uniform(&mut rng, 0.5, 0.7),
+        ),
+        wall([x0, 0.0, 0.0], [1.0, 0.0, 0.0], uniform(&mut rng, 0.5, 0.7)),
+        wall(
+            [0.0, y1, 0.0],
+            [0.0, -1.0, 0.0],
+            uniform(&mut rng, 0.5, 0.7),
+        ),
+        wall([0.0, y0, 0.0], [0.0, 1.0, 0.0], uniform(&mut rng, 0.5, 0.7)),
+    ];
+    let d = WHOLE_TANK_SPACING_M;
+    let mut spots: Vec<[f64; 2]> = Vec::new();
+    // Rejection sampling; the floor holds several times the objects at this spacing, so the
+    // attempt bound is never the limit in practice, only a guard.
+    for _ in 0..100_000 {
+        if spots.len() == WHOLE_TANK_OBJECTS {
+            break;
+        }
+        let p = [
+            uniform(&mut rng, x0 + d, x1 - d),
+            uniform(&mut rng, y0 + d, y1 - d),
+        ];
+        if spots.iter().all(|q| (p[0] - q[0]).hypot(p[1] - q[1]) >= d) {
+            spots.push(p);
+        }
+    }
+    for [x, y] in spots {
+        objects.push(draw_tank_object(&mut rng, x, y));
+    }
+    Scene {
+        kind: SceneKind::Artificial,
+        split: Split::Train,
+        index: 0,
+        seed,
+        sample_seed: 0,
+        sonar: SonarPose::IDENTITY,
+        view_rolls_deg: view_rolls_deg(1),
+        view_pose_errors_deg: Vec::new(),
+        objects,
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1204,6 +1280,44 @@ mod tests {
         assert!(f[0].abs() < 1e-12 && f[1] > 0.8 && (f[2] + 0.5).abs() < 1e-12);
         let up = pose.world_from_reference().rotate([0.0, 0.0, 1.0]);
         assert!(up[2] > 0.8);
+    }
+
+    #[test]
+    fn whole_tank_spreads_its_objects_over_the_floor() {
+        let tank = whole_tank(1);
+        assert_eq!(tank, whole_tank(1), "a seed gives one tank");
+        assert_ne!(tank.objects, whole_tank(2).objects);
+        let spots: Vec<[f64; 2]> = tank
+            .objects
+            .iter()
+            .filter_map(|o| match o {
+                Object::Block { base_center_m, .. } | Object::Arch { base_center_m, .. } => {
+                    Some([base_center_m[0], base_center_m[1]])
+                }
+                _ => None,
+            })
+            .collect();
+        assert_eq!(spots.len(), WHOLE_TANK_OBJECTS);
+        let [[x0, x1], [y0, y1]] = WHOLE_TANK_FLOOR_M;
+        let d = WHOLE_TANK_SPACING_M;
+        for (i, p) in spots.iter().enumerate() {
+            assert!(p[0] >= x0 + d && p[0] <= x1 - d && p[1] >= y0 + d && p[1] <= y1 - d);
+            for q in &spots[..i] {
+                assert!((p[0] - q[0]).hypot(p[1] - q[1]) >= d);
+            }
+        }
+        // Spread, not clustered: every quarter of the floor holds some of them.
+        let (xm, ym) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+        for (east, north) in [(false, false), (false, true), (true, false), (true, true)] {
+            let n = spots
+                .iter()
+                .filter(|p| (p[0] > xm) == east && (p[1] > ym) == north)
+                .count();
+            assert!(
+                n >= WHOLE_TANK_OBJECTS / 8,
+                "quarter ({east}, {north}) holds {n}"
+            );
+        }
     }
 
     #[test]

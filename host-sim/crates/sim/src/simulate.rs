@@ -202,6 +202,10 @@ pub struct SimulateArgs {
     /// objects, in its world frame.
     #[arg(long, requires = "scene")]
     pub export_mesh: Option<PathBuf>,
+    /// With `--export-mesh` and `--scene artificial`: instead of sample 0's scene, a fixed tank
+    /// for a site, its objects spread over the whole floor (`scene::whole_tank` of `--seed`).
+    #[arg(long, requires = "export_mesh")]
+    pub whole_tank: bool,
     /// Number of samples; default: the paper's size of the split (artificial 4000/2000,
     /// terrain 1000/1000, sphere 1000/500).
     #[arg(long)]
@@ -292,20 +296,31 @@ pub const SITE_REFLECTIVITY: f64 = 0.6;
 /// `simulate --export-mesh FILE`: writes sample 0's scene as a mesh.
 fn export_mesh(kind: SceneKind, args: &SimulateArgs, path: &Path) -> Result<()> {
     let format = crate::mesh::MeshFormat::from_path(path)?;
-    let scene = generate(kind, args.split, args.seed, 0, args.views as usize);
+    let scene = if args.whole_tank {
+        ensure!(
+            kind == SceneKind::Artificial,
+            "--whole-tank exports the artificial generator's tank: give --scene artificial"
+        );
+        crate::scene::whole_tank(args.seed)
+    } else {
+        generate(kind, args.split, args.seed, 0, args.views as usize)
+    };
     let mesh = crate::tessellate::scene_mesh(&scene)?;
     let bytes = crate::mesh::to_bytes(&mesh, format);
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     std::fs::write(path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+    let what = if args.whole_tank {
+        format!("the whole tank of seed {}", args.seed)
+    } else {
+        format!("{kind:?} seed {} {} sample 0", args.seed, args.split.name())
+    };
     eprintln!(
-        "wrote {} triangles ({} bytes, SHA-256 {}) of {kind:?} seed {} {} sample 0 to {}",
+        "wrote {} triangles ({} bytes, SHA-256 {}) of {what} to {}",
         mesh.triangles.len(),
         bytes.len(),
         crate::mesh::content_hash(&bytes),
-        args.seed,
-        args.split.name(),
         path.display()
     );
     Ok(())

@@ -196,6 +196,7 @@ fn site_args(site: &Path, region: Option<PathBuf>, out: &Path) -> SimulateArgs {
         region,
         site_reflectivity: None,
         export_mesh: None,
+        whole_tank: false,
         pairs: Some(2),
         seed: 5,
         out: Some(out.to_path_buf()),
@@ -300,4 +301,23 @@ fn a_site_without_a_valid_pose_is_refused() {
     assert!(format!("{err:#}").contains("tilt_deg"), "{err:#}");
     std::fs::write(&bad, r#"{"tilt": [10, 30]}"#).unwrap();
     assert!(Region::load(&bad).is_err());
+}
+
+/// The shipped tank is what its documented command writes (data/sites/README.md), byte for byte.
+#[test]
+fn shipped_tank_is_the_whole_tank_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tank.stl");
+    let args = SimulateArgs {
+        scene: Some(SceneKind::Artificial),
+        site: None,
+        export_mesh: Some(path.clone()),
+        whole_tank: true,
+        seed: 1,
+        out: None,
+        ..site_args(Path::new("unused.stl"), None, dir.path())
+    };
+    run(&args).unwrap();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../data/sites/tank.stl");
+    assert!(std::fs::read(&path).unwrap() == std::fs::read(shipped).unwrap());
 }
