@@ -135,7 +135,7 @@ fn labels_from_a_bundles_poses_are_its_ground_truth_and_score_as_eval() {
 
     // Each row's attitude against the frame header's (`epssn::attitude`): the relative
     // rotation of every pair is the same, roll baseline and the simulated pose error alike.
-    let reader = ArisReader::open(&rec.join("recording.aris")).unwrap();
+    let reader = ArisReader::open(rec.join("recording.aris")).unwrap();
     let header = |i: usize| {
         Attitude::from_array(reader.frame_header(i).unwrap().attitude().unwrap()).unwrap()
     };
