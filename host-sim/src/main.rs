@@ -24,6 +24,9 @@ enum Command {
     Run(host_sim::run::RunArgs),
     /// Concatenate simulated samples into one recording with ground truth (the demo data).
     Bundle(host_sim::run::BundleArgs),
+    /// Ground truth for a recording from its site's mesh and the sonar's pose at each frame,
+    /// for every reference view `run` forms (what `run --gt` reads).
+    Label(host_sim::label::LabelArgs),
     /// Simulate sonar scenes with exact ground truth into sample folders.
     Simulate(epssn_sim::simulate::SimulateArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         Command::Qdiag(args) => epssn_quant::qdiag::run(&args),
         Command::Run(args) => host_sim::run::run(&args, &mut stdout.lock()),
         Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
+        Command::Label(args) => host_sim::label::label(&args, &mut stdout.lock()),
         Command::Simulate(args) => epssn_sim::simulate::run(&args),
         Command::Metrics(args) => epssn_sim::metrics::run(&args),
         Command::Sil(args) => epssn_sil::sil::run(&args, &mut stdout.lock()),

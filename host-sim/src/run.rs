@@ -24,6 +24,7 @@ use epssn_aris::{npy, polar};
 use epssn_reference::{floatref, reference_model, weights};
 use epssn_sim::dataset::demo_dir;
 use epssn_sim::metrics::{self, Accuracy, Metrics};
+use epssn_sim::poses::SitePose;
 use epssn_sim::preview;
 
 /// Arguments of `host-sim run`.
@@ -36,6 +37,25 @@ pub struct RunArgs {
     /// frame (default: `gt/` beside the bundled demo recording; `gt-<spec>/` for another spec).
     #[arg(long)]
     pub gt: Option<PathBuf>,
+    /// Weights, views and how frames are grouped.
+    #[command(flatten)]
+    pub pairing: PairingArgs,
+    /// Dynamic range of the recording's 0–255 counts, dB, for averaging pings in intensity
+    /// (80 for ARIS files, docs/ARIS.md; 70 for the simulator's default).
+    #[arg(long, default_value_t = 80.0)]
+    pub ping_dynamic_range_db: f32,
+    /// Output folder for PNGs, PLYs and `summary.json`.
+    #[arg(long, default_value = "out/run")]
+    pub out: PathBuf,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What decides the depth maps a recording gives: `run` and `label` share it, so `label`
+/// labels exactly the reference views `run` forms.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct PairingArgs {
     /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
     #[arg(long)]
     pub weights: Option<PathBuf>,
@@ -53,16 +73,16 @@ pub struct RunArgs {
     /// were trained on (their manifest's `speckle_looks`), else 1.
     #[arg(long)]
     pub pings_per_view: Option<u32>,
-    /// Dynamic range of the recording's 0–255 counts, dB, for averaging pings in intensity
-    /// (80 for ARIS files, docs/ARIS.md; 70 for the simulator's default).
-    #[arg(long, default_value_t = 80.0)]
-    pub ping_dynamic_range_db: f32,
-    /// Output folder for PNGs, PLYs and `summary.json`.
-    #[arg(long, default_value = "out/run")]
-    pub out: PathBuf,
-    /// Print the summary as JSON.
-    #[arg(long)]
-    pub json: bool,
+}
+
+impl PairingArgs {
+    /// The weights folder: given, else the firmware's.
+    pub fn weights_dir(&self) -> Result<PathBuf> {
+        match &self.weights {
+            Some(w) => Ok(w.clone()),
+            None => weights::firmware_weights_dir(),
+        }
+    }
 }
 
 fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
@@ -281,19 +301,9 @@ fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
 
 /// Runs `host-sim run`.
 pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
-    let weights_dir = match &args.weights {
-        Some(w) => w.clone(),
-        None => weights::firmware_weights_dir()?,
-    };
+    let weights_dir = args.pairing.weights_dir()?;
     let bundle = weights::load(&weights_dir)?;
-    let model = Model::from_blob(&bundle.blob)
-        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))?;
-    let views = args.views.unwrap_or(model.views());
-    ensure!(
-        (2..=config::MAX_VIEWS).contains(&views),
-        "--views must be 2..={}",
-        config::MAX_VIEWS
-    );
+    let model = model_of(&bundle.blob, &weights_dir)?;
     let recording = args
         .recording
         .clone()
@@ -309,20 +319,13 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
                 ))
             })
     });
-    let reader = open_recording(&recording, if args.pairs.is_empty() { views } else { 2 })?;
-    let mut warnings: Vec<String> = reader.warnings().to_vec();
-    let frames = FrameViews::of(args, &reader, &weights_dir, &recording, &mut warnings)?;
-    let (groups, candidates) = if args.pairs.is_empty() {
-        pair_by_pose(&frames, views, &mut warnings)
-    } else {
-        (
-            given_pairs(args, &reader, views, &mut warnings)?,
-            Vec::new(),
-        )
-    };
-    if groups.is_empty() {
-        bail!(no_pairs_message(&recording, &candidates));
-    }
+    let Pairing {
+        reader,
+        frames,
+        groups,
+        candidates,
+        warnings,
+    } = pair_recording(&args.pairing, model.views(), &weights_dir, &recording)?;
     std::fs::create_dir_all(&args.out)?;
     let images = polar_images(args, &reader, &frames, &groups)?;
 
@@ -379,6 +382,70 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     Ok(())
 }
 
+/// The library's model of a blob, refused with the folder's name.
+fn model_of<'a>(blob: &'a [u8], weights_dir: &Path) -> Result<Model<'a>> {
+    Model::from_blob(blob)
+        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))
+}
+
+/// The views the weights in `weights_dir` take (the blob's), as `run` uses them by default.
+pub fn blob_views(weights_dir: &Path) -> Result<usize> {
+    let path = weights_dir.join(weights::BLOB_FILE);
+    let blob = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(model_of(&blob, weights_dir)?.views())
+}
+
+/// A recording opened and grouped as `run` groups it, before any depth is computed.
+pub struct Pairing {
+    /// The recording.
+    pub reader: ArisReader,
+    frames: FrameViews,
+    /// The groups whose depth maps are computed, reference frame first.
+    pub groups: Vec<Vec<usize>>,
+    /// Every candidate with the pose gate's verdict (none with `--pair`).
+    pub candidates: Vec<CandidateReport>,
+    /// The recording's and the pairing's warnings.
+    pub warnings: Vec<String>,
+}
+
+/// Opens `recording` and forms its groups as `run` does: views from `args` (default
+/// `model_views`, the blob's), pings per view, pairing by roll and the pose gate, or the
+/// `--pair` pairs. Fails when no group is formed.
+pub fn pair_recording(
+    args: &PairingArgs,
+    model_views: usize,
+    weights_dir: &Path,
+    recording: &Path,
+) -> Result<Pairing> {
+    let views = args.views.unwrap_or(model_views);
+    ensure!(
+        (2..=config::MAX_VIEWS).contains(&views),
+        "--views must be 2..={}",
+        config::MAX_VIEWS
+    );
+    let reader = open_recording(recording, if args.pairs.is_empty() { views } else { 2 })?;
+    let mut warnings: Vec<String> = reader.warnings().to_vec();
+    let frames = FrameViews::of(args, &reader, weights_dir, recording, &mut warnings)?;
+    let (groups, candidates) = if args.pairs.is_empty() {
+        pair_by_pose(&frames, views, &mut warnings)
+    } else {
+        (
+            given_pairs(args, &reader, views, &mut warnings)?,
+            Vec::new(),
+        )
+    };
+    if groups.is_empty() {
+        bail!(no_pairs_message(recording, &candidates));
+    }
+    Ok(Pairing {
+        reader,
+        frames,
+        groups,
+        candidates,
+        warnings,
+    })
+}
+
 /// Opens a recording that fits the model and holds at least `needed` frames.
 fn open_recording(recording: &Path, needed: usize) -> Result<ArisReader> {
     let reader =
@@ -418,7 +485,7 @@ struct FrameViews {
 
 impl FrameViews {
     fn of(
-        args: &RunArgs,
+        args: &PairingArgs,
         reader: &ArisReader,
         weights_dir: &Path,
         recording: &Path,
@@ -518,7 +585,7 @@ fn pair_by_pose(
 
 /// The pairs given with `--pair`, checked against the recording.
 fn given_pairs(
-    args: &RunArgs,
+    args: &PairingArgs,
     reader: &ArisReader,
     views: usize,
     warnings: &mut Vec<String>,
@@ -785,19 +852,40 @@ pub struct BundleArgs {
     /// Simulated sample folders (`DIR/<split>/<index>/`), in the order to record them.
     #[arg(required = true)]
     pub samples: Vec<PathBuf>,
-    /// Output folder: `recording.aris` and `gt/`.
+    /// Output folder: `recording.aris`, `gt/` and, for samples of one site, `poses.csv`.
     #[arg(long)]
     pub out: PathBuf,
+}
+
+/// The site (file name, SHA-256) all of `scenes` were drawn in, if they were all drawn in one.
+fn common_site(scenes: &[&epssn_sim::scene::Scene]) -> Option<(String, String)> {
+    let site_of = |s: &epssn_sim::scene::Scene| {
+        s.objects.iter().find_map(|o| match o {
+            epssn_sim::scene::Object::Site { file, sha256, .. } => {
+                Some((file.clone(), sha256.clone()))
+            }
+            _ => None,
+        })
+    };
+    let first = site_of(scenes.first()?)?;
+    scenes
+        .iter()
+        .all(|s| site_of(s).as_ref() == Some(&first))
+        .then_some(first)
 }
 
 /// `host-sim bundle`: concatenates simulated samples into one ARIS recording (each sample's
 /// views in roll order, as a rotating sonar would record them, each view's pings in a row when
 /// it was simulated with `ping_frames`) with the ground truth of every
-/// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`.
+/// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`. When every sample was
+/// drawn in one site, `poses.csv` gives each frame's pose in the site frame (`label` reads it);
+/// procedural samples each have a world of their own, so no one file of poses describes them.
 pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
     let gt = args.out.join("gt");
     std::fs::create_dir_all(&gt)?;
     let mut frames: Vec<(epssn_aris::aris::FrameHeader, Vec<u8>)> = Vec::new();
+    let mut poses = Vec::new();
+    let mut scenes = Vec::new();
     for dir in &args.samples {
         let sample = epssn_sim::dataset::Sample::load(dir)?;
         let reference = frames.len();
@@ -811,6 +899,7 @@ pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
                 let mut h = f.header.clone();
                 h.frame_index = frames.len() as u32;
                 h.frame_time_us = 1_700_000_000_000_000 + frames.len() as u64 * 100_000;
+                poses.push((frames.len(), SitePose::of_view(&sample.scene, k)));
                 frames.push((h, f.data));
             }
         }
@@ -825,6 +914,7 @@ pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
             &shape,
             &sample.mask,
         )?;
+        scenes.push(sample.scene);
     }
     let refs: Vec<(&epssn_aris::aris::FrameHeader, &[u8])> =
         frames.iter().map(|(h, d)| (h, d.as_slice())).collect();
@@ -837,5 +927,28 @@ pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
         path.display(),
         gt.display()
     )?;
+    let poses_path = args.out.join("poses.csv");
+    match common_site(&scenes.iter().collect::<Vec<_>>()) {
+        Some((file, _)) => {
+            std::fs::write(&poses_path, epssn_sim::poses::to_csv(&poses))
+                .with_context(|| format!("writing {}", poses_path.display()))?;
+            writeln!(
+                out,
+                "wrote the pose of every frame in site {file} to {}",
+                poses_path.display()
+            )?;
+        }
+        None => {
+            // A poses file left from an earlier bundle would describe other frames.
+            if poses_path.exists() {
+                std::fs::remove_file(&poses_path)
+                    .with_context(|| format!("removing {}", poses_path.display()))?;
+            }
+            writeln!(
+                out,
+                "no poses.csv: the samples were not all drawn in one site"
+            )?;
+        }
+    }
     Ok(())
 }

@@ -40,6 +40,17 @@ pub fn front_depth(scene: &Scene, world: &World, view: usize) -> (Vec<f64>, Vec<
     (depth, mask)
 }
 
+/// The reference view's depth (metres, f32) and mask (0/1) as a sample folder's `depth.npy` and
+/// `mask.npy` hold them: [`front_depth`] of view 0. `simulate` and `label` both write these, so
+/// a label from a pose equals the simulated sample's ground truth bit for bit.
+pub fn reference_labels(scene: &Scene, world: &World) -> (Vec<f32>, Vec<f32>) {
+    let (depth, mask) = front_depth(scene, world, 0);
+    (
+        depth.iter().map(|d| *d as f32).collect(),
+        mask.iter().map(|m| if *m { 1.0 } else { 0.0 }).collect(),
+    )
+}
+
 /// Polar input image (R × B u8) of a simulated frame, exactly as a reader of the written
 /// `.aris` file gets it: through `polar::frame_to_polar` (the file's beam table and range
 /// geometry) and so through `epssn::geometry::resample_to_grid`.

@@ -9,6 +9,7 @@ pub mod draw;
 pub mod groundtruth;
 pub mod mesh;
 pub mod metrics;
+pub mod poses;
 pub mod preview;
 pub mod render;
 pub mod scene;

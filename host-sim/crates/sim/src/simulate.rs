@@ -23,7 +23,7 @@ use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS, INPUT_COLUMNS, INPUT_RANGE_BINS, 
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
-use crate::groundtruth::{elevation_map, front_depth, polar_image};
+use crate::groundtruth::{elevation_map, polar_image, reference_labels};
 use crate::render::{frame_header_posed, render_view, SonarSimParams};
 use crate::scene::{fix_pose, generate, Scene, SceneKind, Split, World};
 use crate::site::{Region, Site};
@@ -86,14 +86,14 @@ pub fn simulate_world(scene: &Scene, world: &World, params: &SonarSimParams) -> 
         frames.push(view.samples);
         pings.push(view.pings);
     }
-    let (depth, mask) = front_depth(scene, world, 0);
+    let (depth, mask) = reference_labels(scene, world);
     Ok(SampleData {
         scene: scene.clone(),
         frames,
         pings,
         polar_views,
-        depth: depth.iter().map(|d| *d as f32).collect(),
-        mask: mask.iter().map(|m| if *m { 1.0 } else { 0.0 }).collect(),
+        depth,
+        mask,
         elevation,
     })
 }
