@@ -68,8 +68,6 @@ step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
 # `host-sim train` through the binary: only the `train` feature builds it.
 cargo test -p host-sim --features train --test cli
-# The sensor fit's recovery test: 61 simulations per fit, 43 s in release (skipped in dev).
-cargo test --release -p epssn-sim --test sensor_fit
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
