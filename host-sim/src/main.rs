@@ -29,6 +29,9 @@ enum Command {
     Label(host_sim::label::LabelArgs),
     /// Simulate sonar scenes with exact ground truth into sample folders.
     Simulate(epssn_sim::simulate::SimulateArgs),
+    /// Fit the simulator's noise model (speckle looks, floor, gain, dynamic range,
+    /// crosstalk) to a recording's image statistics; writes a `simulate --params` file.
+    FitSensor(epssn_sim::sensor_fit::FitSensorArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
     Metrics(epssn_sim::metrics::MetricsArgs),
     /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
@@ -55,6 +58,7 @@ fn main() -> ExitCode {
         Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
         Command::Label(args) => host_sim::label::label(&args, &mut stdout.lock()),
         Command::Simulate(args) => epssn_sim::simulate::run(&args),
+        Command::FitSensor(args) => epssn_sim::sensor_fit::run(&args, &mut stdout.lock()),
         Command::Metrics(args) => epssn_sim::metrics::run(&args),
         Command::Sil(args) => epssn_sil::sil::run(&args, &mut stdout.lock()),
         Command::Bench(args) => epssn_sil::bench::run(&args, &mut stdout.lock()),

@@ -13,6 +13,8 @@ pub mod poses;
 pub mod preview;
 pub mod render;
 pub mod scene;
+pub mod sensor_fit;
+pub mod sensor_stats;
 pub mod simulate;
 pub mod site;
 pub mod synthetic;

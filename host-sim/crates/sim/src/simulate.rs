@@ -326,6 +326,29 @@ fn export_mesh(kind: SceneKind, args: &SimulateArgs, path: &Path) -> Result<()> 
     Ok(())
 }
 
+/// The checks `simulate` makes on a parameter file before rendering anything.
+pub fn check_params(params: &SonarSimParams) -> Result<()> {
+    ensure!(
+        params.samples_per_beam > 0 && params.sample_period_us > 0,
+        "sim params: samples_per_beam and sample_period_us must be positive"
+    );
+    ensure!(
+        params.dynamic_range_db.is_finite()
+            && params.dynamic_range_db > 0.0
+            && params.dynamic_range_db <= 200.0,
+        "sim params: dynamic_range_db must be within (0, 200]"
+    );
+    ensure!(
+        params.noise_looks.is_finite() && (0.0..=1e6).contains(&params.noise_looks),
+        "sim params: noise_looks must be within 0..=1e6 (0: the floor shares speckle_looks)"
+    );
+    ensure!(
+        params.noise_looks == 0.0 || !params.ping_frames,
+        "sim params: noise_looks cannot be combined with ping_frames"
+    );
+    Ok(())
+}
+
 /// Runs `host-sim simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let site = args.site.as_deref().map(Site::load).transpose()?;
@@ -367,16 +390,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         args.pose_jitter_deg.is_finite() && (0.0..=30.0).contains(&args.pose_jitter_deg),
         "--pose-jitter-deg must be within 0..=30"
     );
-    ensure!(
-        params.samples_per_beam > 0 && params.sample_period_us > 0,
-        "sim params: samples_per_beam and sample_period_us must be positive"
-    );
-    ensure!(
-        params.dynamic_range_db.is_finite()
-            && params.dynamic_range_db > 0.0
-            && params.dynamic_range_db <= 200.0,
-        "sim params: dynamic_range_db must be within (0, 200]"
-    );
+    check_params(&params)?;
     let split_dir = out.join(args.split.name());
     std::fs::create_dir_all(&split_dir)
         .with_context(|| format!("creating {}", split_dir.display()))?;
