@@ -299,10 +299,11 @@ pub fn run_folded(
             // The end bins may reach beyond the window; the depth is clamped to it.
             let soft = (t / s).clamp(config::R_MIN_M, config::R_MAX_M) as f32;
             let mass = |i: usize| (((logit(i) - m) as f64).exp() / s) as f32;
+            let (near, far) = (mass(0), mass(r - 1));
             trace.soft_depth[at] = soft;
-            trace.near_mass[at] = mass(0);
-            trace.far_mass[at] = mass(r - 1);
-            trace.depth[at] = decide(soft, mass(0), mass(r - 1), config::NO_RETURN_MASS);
+            trace.near_mass[at] = near;
+            trace.far_mass[at] = far;
+            trace.depth[at] = decide(soft, near, far, config::NO_RETURN_MASS);
         }
     }
     Ok(trace)
