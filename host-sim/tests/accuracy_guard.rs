@@ -6,7 +6,8 @@
 //! three-view data, against `weights/general-3view/ACCURACY_GUARD.json`, and the three-view
 //! model for four pings per view (`weights/general-3view-looks4/`) on three-view data whose
 //! four pings per view are averaged as a host averages recorded frames
-//! (`scripts/sim-params/looks-4-frames.json`).
+//! (`scripts/sim-params/looks-4-frames.json`). The tank site's model (`weights/site-tank/`) is
+//! guarded on poses drawn throughout the shipped tank (`simulate --site data/sites/tank.stl`).
 //!
 //! After a deliberate change of a guarded model, rewrite the committed figures with
 //! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the files.
@@ -71,18 +72,46 @@ fn four_ping_three_view_model_keeps_its_accuracy_on_every_scene() {
 /// pings a model expects), evaluates `weights` (None: the shipped model; eval feeds the views
 /// the model was trained for) and checks or blesses `file`.
 fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&str>) {
+    guard_on(
+        &SCENES.map(|s| (s, "--scene", s)),
+        weights,
+        views,
+        file,
+        sim_params,
+    );
+}
+
+#[test]
+fn tank_site_model_keeps_its_accuracy_on_the_tank() {
+    guard_on(
+        &[("tank", "--site", "data/sites/tank.stl")],
+        Some("weights/site-tank"),
+        2,
+        "weights/site-tank/ACCURACY_GUARD.json",
+        None,
+    );
+}
+
+/// `guard` on `sources`: (name in the guard file, `simulate` option, its value) each.
+fn guard_on(
+    sources: &[(&str, &str, &str)],
+    weights: Option<&str>,
+    views: usize,
+    file: &str,
+    sim_params: Option<&str>,
+) {
     let data = tempfile::tempdir().unwrap();
     let views_arg = views.to_string();
     let mut measured = serde_json::Map::new();
-    for scene in SCENES {
+    for &(scene, option, value) in sources {
         let out = data.path().join(scene);
         let out = out.to_str().unwrap();
         let pairs = PAIRS.to_string();
         let seed = SEED.to_string();
         let mut sim = vec![
             "simulate",
-            "--scene",
-            scene,
+            option,
+            value,
             "--split",
             "test",
             "--pairs",
@@ -136,8 +165,8 @@ fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&st
     let file = root().join(file);
     let doc = serde_json::json!({
         "what": format!(
-            "{}, `host-sim eval --int8` on `simulate --split test --seed 77 \
-             --pairs 48 --views {views}{}` per scene; mae = the paper's formula (all pixels, \
+            "{}, `host-sim eval --int8` on `simulate --scene SCENE (or --site MESH) --split test \
+             --seed 77 --pairs 48 --views {views}{}` per scene; mae = the paper's formula (all pixels, \
              labels clamped), mm",
             weights.unwrap_or("shipped model"),
             sim_params.map_or(String::new(), |p| format!(" --params {p}"))
@@ -153,7 +182,7 @@ fn guard(weights: Option<&str>, views: usize, file: &str, sim_params: Option<&st
     }
     let committed: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
-    for scene in SCENES {
+    for &(scene, ..) in sources {
         let want = committed["scenes"][scene]["float_mae"].as_f64().unwrap();
         let got = &measured[scene];
         let (float, int8) = (
