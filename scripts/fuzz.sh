@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of every parser (fuzz/: cargo-fuzz, libFuzzer): the link decoder,
-# the weight blob, the spec JSON, the beam tables, the ARIS reader, the frame pairing and the
-# site mesh readers (STL, OBJ, PLY).
+# the weight blob, the spec JSON, the beam tables, the ARIS reader, the frame pairing, the
+# site mesh readers (STL, OBJ, PLY) and the poses file of `label` (CSV).
 #   bash scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
 # Installs what it needs (a nightly toolchain, cargo-fuzz), seeds each corpus, runs each target
 # for SECONDS (default 30) and fails on the first crash; crashes land in fuzz/artifacts/<target>/
@@ -15,13 +15,13 @@ cd "$(dirname "$0")/.."
 seconds=${1:-30}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(link_decoder model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply)
+[ ${#targets[@]} -gt 0 ] || targets=(link_decoder model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply poses_csv)
 
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install --locked cargo-fuzz
 
 corpus=fuzz/corpus
-mkdir -p "$corpus"/{link_decoder,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply}
+mkdir -p "$corpus"/{link_decoder,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply,poses_csv}
 cargo run -q --example link_seeds -- "$corpus/link_decoder"
 cp "$(awk '$1 == "epssn-s.json" { print $2 }' weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
 cp "$corpus/model_from_blob/shipped.q8.bin" "$corpus/model_from_blob_fixed/shipped.q8.bin"
