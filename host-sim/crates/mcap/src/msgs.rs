@@ -214,9 +214,7 @@ impl PointCloud2 {
                 .checked_mul(point_step)
                 .context("too many points for one cloud")?,
             data: Bytes(data),
-            is_dense: points
-                .iter()
-                .all(|p| p.xyz.iter().all(|v| v.is_finite())),
+            is_dense: points.iter().all(|p| p.xyz.iter().all(|v| v.is_finite())),
         })
     }
 }

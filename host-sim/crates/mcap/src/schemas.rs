@@ -113,11 +113,18 @@ mod tests {
                 .lines()
                 .filter_map(|l| l.strip_prefix("MSG: "))
                 .collect();
-            for line in text.lines().filter(|l| !l.is_empty() && !l.starts_with('=')) {
+            for line in text
+                .lines()
+                .filter(|l| !l.is_empty() && !l.starts_with('='))
+            {
                 if line.starts_with("MSG: ") {
                     continue;
                 }
-                let ty = line.split_whitespace().next().unwrap().trim_end_matches("[]");
+                let ty = line
+                    .split_whitespace()
+                    .next()
+                    .unwrap()
+                    .trim_end_matches("[]");
                 assert!(
                     primitives.contains(&ty) || defined.contains(&ty),
                     "{}: {ty} is not defined",
