@@ -283,6 +283,15 @@ fn demo_run_mcap_decodes_to_the_frames_and_the_json() {
         let polar = epssn_aris::polar::frame_to_polar(&reader.frame(i).unwrap()).unwrap();
         assert_eq!(img.data, polar, "frame {i}");
     }
+    for (t, data) in &m["/sonar/fan"] {
+        let img = image(data);
+        assert_eq!((img.stamp, img.encoding.as_str()), (*t, "mono8"));
+        // EPSSN-S: 6 mm pixels over the ±15° fan from 2.0 to 3.536 m (docs/MCAP.md).
+        if epssn::config::SPEC_NAME == "EPSSN-S" {
+            assert_eq!((img.width, img.height), (308, 268));
+        }
+        assert!(img.data.iter().any(|&v| v > 0));
+    }
     for (i, (_, data)) in m["/tf"].iter().enumerate() {
         let t = tf(data);
         assert_eq!(t.len(), 1);

@@ -2,7 +2,7 @@
 //! at rotator rolls −14° … +14°, the headers carrying the pose as the platform's heading and
 //! pitch, `--poses` its position): the merged cloud lies on the scene's surfaces as closely as
 //! each pair's own cloud lies on its ground truth, and the same clouds turned the wrong way
-//! (the rotation's sign flipped) miss that bound.
+//! (the rotation's sign flipped, or the roll's alone) miss that bound.
 
 use std::path::Path;
 use std::process::Command;
@@ -59,6 +59,13 @@ fn flipped(t: &RigidTransform) -> RigidTransform {
         rotation: [0, 1, 2].map(|i| [0, 1, 2].map(|j| r[j][i])),
         translation: t.translation,
     }
+}
+
+/// `t` with the rotator's roll counted the wrong way: world ← sonar = W · Rx(roll) becomes
+/// W · Rx(−roll) = t · Rx(−2·roll).
+fn roll_flipped(t: &RigidTransform, roll_deg: f64) -> RigidTransform {
+    // RigidTransform::roll_deg(ρ) is Rx(−ρ).
+    t.compose(&RigidTransform::roll_deg(2.0 * roll_deg))
 }
 
 #[test]
@@ -126,6 +133,7 @@ fn the_merged_sweep_lies_on_the_scene_and_a_flipped_rotation_does_not() {
     // Each pair's cloud against its own ground truth, in its sonar frame; and placed wrongly.
     let (mut per_pair_sum, mut per_pair_n) = (0.0, 0);
     let mut wrong = Vec::new();
+    let mut wrong_roll = Vec::new();
     for (k, d) in v["details"].as_array().unwrap().iter().enumerate() {
         let reference = d["frames"][0].as_u64().unwrap() as usize;
         assert_eq!(reference, k);
@@ -137,6 +145,8 @@ fn the_merged_sweep_lies_on_the_scene_and_a_flipped_rotation_does_not() {
         per_pair_n += pts.len();
         let bad = flipped(&world_from_view[reference]);
         wrong.extend(pts.iter().map(|p| bad.apply(*p)));
+        let bad_roll = roll_flipped(&world_from_view[reference], ROLLS_DEG[reference]);
+        wrong_roll.extend(pts.iter().map(|p| bad_roll.apply(*p)));
     }
     let per_pair = per_pair_sum / per_pair_n as f64;
     let merged = ply(&out.join("world.ply"));
@@ -146,15 +156,17 @@ fn the_merged_sweep_lies_on_the_scene_and_a_flipped_rotation_does_not() {
     let merged: Vec<[f64; 3]> = merged.into_iter().map(|(p, _)| p).collect();
     let merged_figure = mean_nearest(&merged, &truth_world);
     let wrong_figure = mean_nearest(&wrong, &truth_world);
+    let wrong_roll_figure = mean_nearest(&wrong_roll, &truth_world);
     // The nearest truth of any pair is no farther than the pair's own: the merged figure is at
     // most the per-pair one, up to the PLY's rounding, if every cloud was placed right.
     let bound = per_pair * 1.02 + 1e-4;
     eprintln!(
         "mean distance to the nearest true point: per pair {:.2} mm, merged {:.2} mm, \
-         rotation flipped {:.2} mm (bound {:.2} mm; {} points)",
+         rotation flipped {:.2} mm, roll alone flipped {:.2} mm (bound {:.2} mm; {} points)",
         per_pair * 1e3,
         merged_figure * 1e3,
         wrong_figure * 1e3,
+        wrong_roll_figure * 1e3,
         bound * 1e3,
         per_pair_n
     );
