@@ -447,6 +447,19 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
     } else {
         print_summary(&summary, &bundle.description, &args.out, out)?;
+        if merged.is_some() {
+            writeln!(
+                out,
+                "wrote the pairs merged in the world frame to world.ply"
+            )?;
+        }
+        if let Some(path) = &args.mcap {
+            writeln!(
+                out,
+                "wrote {} (ROS 2 messages, docs/MCAP.md)",
+                path.display()
+            )?;
+        }
     }
     Ok(())
 }
