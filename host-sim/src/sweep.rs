@@ -30,37 +30,9 @@ pub enum CloudFrame {
 /// headers then describe different motions, and the attitude is the one used.
 pub const POSE_DISAGREEMENT_DEG: f64 = 1.0;
 
-/// The rotation of a quaternion `[w, x, y, z]` (normalised in f64: the link's values are kept
-/// as sent, up to 2 % off unit norm).
-pub fn rotation_of(q: [f32; 4]) -> [[f64; 3]; 3] {
-    let [w, x, y, z] = q.map(f64::from);
-    let n = (w * w + x * x + y * y + z * z).sqrt();
-    let [w, x, y, z] = [w / n, x / n, y / n, z / n];
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
-}
-
 /// World ← sonar of a frame: its attitude's rotation, its position (metres) as translation.
 pub fn world_from_sonar(attitude: &Attitude, position_m: [f64; 3]) -> RigidTransform {
-    RigidTransform {
-        rotation: rotation_of(attitude.to_array()),
-        translation: position_m,
-    }
+    RigidTransform::from_quaternion(attitude.to_array(), position_m)
 }
 
 /// Angle between two rotations, degrees.
@@ -100,27 +72,20 @@ pub fn place(
                 .insert(f, "its header has no attitude (docs/POSE.md)".into());
             continue;
         };
-        let position = match poses {
-            None => [0.0; 3],
-            Some(rows) => match rows.get(&f) {
-                Some(row) => {
-                    let off = rotation_angle_deg(
-                        &row.site_from_sonar().rotation,
-                        &rotation_of(att.to_array()),
-                    );
-                    if worst.is_none_or(|(_, w)| off > w) {
-                        worst = Some((f, off));
-                    }
-                    row.position_m
-                }
-                None => {
-                    p.missing
-                        .insert(f, "the poses file has no row for it".into());
-                    continue;
-                }
-            },
-        };
-        p.transforms.insert(f, world_from_sonar(&att, position));
+        let mut t = world_from_sonar(&att, [0.0; 3]);
+        if let Some(rows) = poses {
+            let Some(row) = rows.get(&f) else {
+                p.missing
+                    .insert(f, "the poses file has no row for it".into());
+                continue;
+            };
+            let off = rotation_angle_deg(&row.site_from_sonar().rotation, &t.rotation);
+            if worst.is_none_or(|(_, w)| off > w) {
+                worst = Some((f, off));
+            }
+            t.translation = row.position_m;
+        }
+        p.transforms.insert(f, t);
     }
     if let Some((f, off)) = worst.filter(|&(_, off)| off > POSE_DISAGREEMENT_DEG) {
         p.warnings.push(format!(

@@ -15,6 +15,14 @@ use epssn_aris::npy;
 use epssn_sim::metrics;
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+/// The topics `run --mcap` writes once per pair.
+const PER_PAIR_TOPICS: [&str; 5] = [
+    "/depth/int8",
+    "/depth/float",
+    "/depth/ground_truth",
+    "/points/int8",
+    "/points/float",
+];
 
 fn host_sim() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_host-sim"));
@@ -311,13 +319,7 @@ fn demo_run_mcap_decodes_to_the_frames_and_the_json() {
         let decoded: serde_json::Value = serde_json::from_str(&string(data)).unwrap();
         assert_eq!(&decoded, c);
     }
-    for topic in [
-        "/depth/int8",
-        "/depth/float",
-        "/depth/ground_truth",
-        "/points/int8",
-        "/points/float",
-    ] {
+    for topic in PER_PAIR_TOPICS {
         assert_eq!(count(&m, topic), pairs, "{topic}");
     }
     for (k, d) in details.iter().enumerate() {
@@ -417,13 +419,7 @@ fn a_recording_without_attitude_writes_every_pair_and_says_why_no_world_cloud() 
     );
     assert!(!out.join("world.ply").exists());
     let m = messages(&file);
-    for topic in [
-        "/depth/int8",
-        "/depth/float",
-        "/depth/ground_truth",
-        "/points/int8",
-        "/points/float",
-    ] {
+    for topic in PER_PAIR_TOPICS {
         assert_eq!(count(&m, topic), pairs, "{topic}");
     }
     assert_eq!(count(&m, "/sonar/polar"), reader.frame_count());
