@@ -493,6 +493,14 @@ fn world_cloud(
             reasons.join("; ")
         ));
     }
+    if poses.is_none() && placement.transforms.len() > 1 {
+        warnings.push(
+            "world-frame cloud without --poses: every pair sits at the origin, turned by its \
+             header attitude only, so pairs recorded at different places (or, as in the bundled \
+             demo, of different scenes) overlap; a rotator sweep from one place merges right"
+                .into(),
+        );
+    }
     let merged = sweep::merge(clouds, &placement);
     sweep::write_merged_ply(&dir.join("world.ply"), &merged)?;
     Ok(Some(merged))

@@ -129,6 +129,21 @@ fn the_merged_sweep_lies_on_the_scene_and_a_flipped_rotation_does_not() {
         !warnings.contains("world-frame") && !warnings.contains("poses file"),
         "{warnings}"
     );
+    // Without the poses file the pairs are placed by attitude alone, and the run says so.
+    let o = Command::new(env!("CARGO_BIN_EXE_host-sim"))
+        .current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .args(["run", "--json", "--frame", "world", "--recording"])
+        .arg(&rec)
+        .arg("--out")
+        .arg(dir.path().join("out-no-poses"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let unposed: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(
+        unposed["warnings"].to_string().contains("without --poses"),
+        "{unposed}"
+    );
 
     // Each pair's cloud against its own ground truth, in its sonar frame; and placed wrongly.
     let (mut per_pair_sum, mut per_pair_n) = (0.0, 0);
