@@ -33,6 +33,17 @@ pub const MAGIC: u32 = u32::from_le_bytes(*b"EPFR");
 /// First word of the text.
 const TEXT_WORD: usize = 12;
 
+/// The faults a test build's `inject` message provokes (feature `fault-injection` of the
+/// library and `reset-faults` of the QEMU firmware; `host-sim sil --reset-faults`).
+pub mod inject {
+    /// The serving loop stops feeding the watchdog: a hang.
+    pub const HANG: u16 = 1;
+    /// A panic.
+    pub const PANIC: u16 = 2;
+    /// Unbounded recursion: the stack overflows into the guard below RAM (flip-link).
+    pub const STACK_OVERFLOW: u16 = 3;
+}
+
 /// Why the device last reset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -67,7 +78,10 @@ impl ResetCause {
 
     /// The cause of a number.
     pub fn from_code(code: u32) -> Option<Self> {
-        Self::ALL.iter().copied().find(|c| u32::from(c.code()) == code)
+        Self::ALL
+            .iter()
+            .copied()
+            .find(|c| u32::from(c.code()) == code)
     }
 
     /// A short name, for reports.

@@ -169,7 +169,7 @@ impl Campaign<'_> {
 
     fn hello(&mut self, seq: u32) -> Vec<u8> {
         self.seq = seq;
-        msg_bytes(&Message::Hello { seq, status: None })
+        msg_bytes(&Message::hello(seq))
     }
 
     fn below(&mut self, n: usize) -> usize {
@@ -357,6 +357,9 @@ impl Campaign<'_> {
             2 => Message::Hello {
                 seq,
                 status: Some(Status::default()),
+                reset: None,
+                record: None,
+                ack: None,
             },
             _ => Message::Depth {
                 seq,
