@@ -25,6 +25,8 @@ use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
 
 #[allow(unsafe_code)]
+pub mod reset;
+#[allow(unsafe_code)]
 mod stack;
 pub use stack::Stack;
 
