@@ -74,6 +74,12 @@ step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 host_sim="$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim"
 "$host_sim" sil --json
 
+step "device resets in QEMU: watchdog on a hang, fault record on a panic and a stack overflow"
+# A test build of the firmware (feature reset-faults, its own target directory) hangs, panics
+# and overflows its stack on request; each reset's cause and record must come back in the next
+# hello, and the depth maps after it must be bit-exact (docs/LINK.md "Resets"; about 50 s).
+"$host_sim" sil --frames 6 --faults 0 --reset-faults 1 --json
+
 step "three-view model (weights/general-3view) in QEMU: SIL on data/demo-3view"
 # The same build with the three-view blob embedded: its view count makes the device pair frames
 # in threes (0, +7, +14 degrees); its budgets allow one more warped view per map.

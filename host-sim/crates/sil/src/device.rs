@@ -13,6 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
+use epssn::fault::{Record, ResetCause};
 use epssn::link::{self, Decoder, Header, Message, Payload};
 
 /// An owned device reply.
@@ -27,8 +28,9 @@ pub(crate) enum Reply {
         bits: Vec<u32>,
     },
     Status(link::Status),
-    /// The device's hello reply, with its counters.
-    Hello(link::Status),
+    /// The device's hello reply: its counters, why it last reset and its fault record (until
+    /// acknowledged).
+    Hello(link::Status, Option<ResetCause>, Option<Record>),
     Error {
         code: u16,
         msg: String,
@@ -58,8 +60,13 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
         Ok(Message::Status { status, .. }) => Reply::Status(status),
         Ok(Message::Hello {
             status: Some(status),
+            reset,
+            record,
             ..
-        }) => Reply::Hello(status),
+        }) => match record.map(Record::from_bytes) {
+            Some(None) => Reply::Garbled("hello: invalid fault record".into()),
+            r => Reply::Hello(status, reset, r.flatten()),
+        },
         Ok(Message::Error { code, msg, .. }) => Reply::Error {
             code,
             msg: msg.to_string(),
@@ -232,6 +239,17 @@ impl Device {
                 self.timeout,
                 self.console_text()
             ),
+            Err(RecvTimeoutError::Disconnected) => {
+                bail!("the link closed; console:\n{}", self.console_text())
+            }
+        }
+    }
+
+    /// The next reply if one comes within `wait`.
+    pub(crate) fn reply_within(&mut self, wait: Duration) -> Result<Option<Reply>> {
+        match self.replies.recv_timeout(wait) {
+            Ok(r) => Ok(Some(r)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => {
                 bail!("the link closed; console:\n{}", self.console_text())
             }

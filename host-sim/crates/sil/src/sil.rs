@@ -79,6 +79,12 @@ pub struct SilArgs {
     /// The serial port's baud rate (the board's `LINK_BAUD`).
     #[arg(long, default_value_t = 921_600)]
     pub baud: u32,
+    /// Device resets (docs/LINK.md, "Resets"): builds the firmware with its test-only feature
+    /// `reset-faults` and provokes a hang, a panic and a stack overflow this many rounds each
+    /// (seeded order), checking each reset's cause and fault record and the depth maps after
+    /// it bit for bit.
+    #[arg(long, default_value_t = 0)]
+    pub reset_faults: usize,
 }
 
 /// What a soak (`--soak N`) adds to the fault campaign's table.
@@ -160,6 +166,8 @@ pub struct SilReport {
     pub faults: Option<FaultReport>,
     /// The soak, with `--soak N`.
     pub soak: Option<SoakReport>,
+    /// The provoked resets, with `--reset-faults N`.
+    pub resets: Option<crate::resets::ResetReport>,
     /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
     /// the host library (pairs and feature cache included); true without a campaign.
     pub after_faults_bit_exact: bool,
@@ -187,11 +195,23 @@ fn firmware_blob() -> Result<Vec<u8>> {
 /// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
+    build_firmware_with(None)
+}
+
+/// [`build_firmware`] with a cargo feature of the firmware (a test build, in a target
+/// directory of its own, `<target>/<feature>`, so it never replaces the shipped build).
+pub fn build_firmware_with(feature: Option<&str>) -> Result<PathBuf> {
     let dir = epssn_spec::load::repo_root().join("firmware");
     let spec_file = epssn::config::SPEC_FILE_NAME;
-    let target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
-    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--release", "--quiet", "--target-dir"])
+    let mut target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
+    let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cargo.args(["build", "--release", "--quiet"]);
+    if let Some(f) = feature {
+        target = target.join(f);
+        cargo.args(["--features", f]);
+    }
+    let status = cargo
+        .arg("--target-dir")
         .arg(&target)
         .current_dir(&dir)
         // The firmware is built from the same spec as this host tool (specs live in weights/).
@@ -469,7 +489,7 @@ fn open_device(args: &SilArgs, timeout: Duration) -> Result<(PathBuf, (u64, u64)
         None => {
             let elf = match &args.firmware {
                 Some(p) => p.clone(),
-                None => build_firmware()?,
+                None => build_firmware_with((args.reset_faults > 0).then_some("reset-faults"))?,
             };
             let sizes = elf_sizes(&elf)?;
             let device = Device::boot(&elf, timeout)?;
@@ -536,6 +556,36 @@ fn faults_and_soak(
     })
 }
 
+/// `--reset-faults N` on the session's frames (the first `AFTER_FAULTS_FRAMES`), each
+/// stream starting a session's numbering at 1.
+fn provoke_resets(
+    args: &SilArgs,
+    device: &mut Device,
+    frames: &[HostFrame],
+) -> Result<crate::resets::ResetReport> {
+    let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
+    // Frames the reset loses: those after the last one that completed a view set.
+    let cached_after = |n: usize| {
+        let done = again[..n].iter().rposition(|f| f.expected.is_some());
+        n - done.map_or(0, |i| i + 1)
+    };
+    let mut stream_n = |device: &mut Device, n: usize| {
+        let mut seq = 0;
+        let part = &again[..n.min(again.len())];
+        let s = stream(device, part, &mut seq)?;
+        let expected = part.iter().filter(|f| f.expected.is_some()).count();
+        Ok((s.depth_maps, expected, s.pairs_ok && s.mismatched == 0))
+    };
+    crate::resets::reset_faults(
+        device,
+        args.reset_faults,
+        args.seed,
+        again.len(),
+        &cached_after,
+        &mut stream_n,
+    )
+}
+
 /// The device's final status counters, then a shutdown: whether it was acknowledged and
 /// QEMU exited cleanly.
 fn close(device: &mut Device, seq: &mut u32) -> Result<(link::Status, bool, bool)> {
@@ -598,6 +648,11 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         soak: soak_report,
     } = faults_and_soak(args, &mut device, &frames, &mut seq)?;
     let faults_seconds = faults_start.elapsed().as_secs_f64();
+    let resets = if args.reset_faults > 0 {
+        Some(provoke_resets(args, &mut device, &frames)?)
+    } else {
+        None
+    };
     let (status, shutdown_ok, exited) = close(&mut device, &mut seq)?;
     let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
     let mean = if instructions.is_empty() {
@@ -660,6 +715,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         faults_seconds,
         faults,
         soak: soak_report,
+        resets,
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
@@ -770,6 +826,32 @@ fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
             )?;
         }
     }
+    if let Some(x) = &r.resets {
+        writeln!(
+            out,
+            "resets (seed {}, {} rounds, {:.1} s): {} depth maps checked, all as they must be: {}",
+            x.seed, x.rounds, x.seconds, x.depth_maps, x.all_ok
+        )?;
+        for e in &x.resets {
+            writeln!(
+                out,
+                "  {:<15} after {} frames ({} lost, re-sent): reset {} (expected {}), {:.1} s; \
+                 record {:?} fits: {}; acknowledged: {}; {} of {} depth maps after, bit-exact: {}",
+                e.fault,
+                e.frames_before,
+                e.frames_lost,
+                e.cause,
+                e.expected_cause,
+                e.reboot_seconds,
+                e.record,
+                e.record_ok,
+                e.acknowledged,
+                e.depth_maps_after,
+                e.expected_depth_maps_after,
+                e.bit_exact_after
+            )?;
+        }
+    }
     writeln!(out, "alive: {}", r.alive)?;
     writeln!(
         out,
@@ -815,6 +897,9 @@ fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
                 s.stack_high_water_after
             );
         }
+    }
+    if r.resets.as_ref().is_some_and(|x| !x.all_ok) {
+        bail!("SIL: a provoked reset was not reported, recovered from or bit-exact after");
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
