@@ -96,6 +96,28 @@ impl ResetCause {
     }
 }
 
+/// The cause of an STM32H7's reset from its RCC_RSR flags (RM0433 8.7.39) and the record
+/// in RAM. IWDG1 wins (the IWDG has no early interrupt, so no record says `watchdog`); a
+/// power-on or brown-out is `PowerOn` whatever the RAM holds; a software reset (SYSRESETREQ:
+/// a panic or HardFault handler) is the record's cause; anything else (the reset pin, a
+/// window-watchdog or low-power reset, a software reset without a record such as the board's
+/// after `shutdown`) is `Other`. The pin flag is set by every reset, so it decides nothing.
+pub fn stm32h7_reset_cause(rsr: u32, record: Option<&Record>) -> ResetCause {
+    const BORRSTF: u32 = 1 << 21;
+    const PORRSTF: u32 = 1 << 23;
+    const SFTRSTF: u32 = 1 << 24;
+    const IWDG1RSTF: u32 = 1 << 26;
+    if rsr & IWDG1RSTF != 0 {
+        ResetCause::Watchdog
+    } else if rsr & (PORRSTF | BORRSTF) != 0 {
+        ResetCause::PowerOn
+    } else if rsr & SFTRSTF != 0 {
+        record.map_or(ResetCause::Other, |r| r.cause)
+    } else {
+        ResetCause::Other
+    }
+}
+
 /// What a fault handler found, written just before it resets the device.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Record {
@@ -375,6 +397,29 @@ mod tests {
         let b = Record { pc: a.pc + 2, ..a };
         assert_eq!(a.id(), a.to_words()[1]);
         assert_ne!(a.id(), b.id());
+    }
+
+    #[test]
+    fn stm32h7_reset_flags_give_the_cause() {
+        let (pin, por, bor, sft, iwdg, wwdg) = (
+            1u32 << 22,
+            1u32 << 23,
+            1u32 << 21,
+            1u32 << 24,
+            1u32 << 26,
+            1u32 << 28,
+        );
+        let panic = Record::panic(&"x", "y", 1, 1);
+        let c = stm32h7_reset_cause;
+        // Power-on sets POR, BOR and PIN; the RAM may hold anything.
+        assert_eq!(c(por | bor | pin, Some(&panic)), ResetCause::PowerOn);
+        assert_eq!(c(bor | pin, None), ResetCause::PowerOn);
+        assert_eq!(c(iwdg | pin, None), ResetCause::Watchdog);
+        assert_eq!(c(iwdg | pin, Some(&panic)), ResetCause::Watchdog);
+        assert_eq!(c(sft | pin, Some(&panic)), ResetCause::Panic);
+        assert_eq!(c(sft | pin, None), ResetCause::Other);
+        assert_eq!(c(pin, Some(&panic)), ResetCause::Other);
+        assert_eq!(c(wwdg | pin, None), ResetCause::Other);
     }
 
     #[test]
