@@ -52,6 +52,8 @@ mix=$root/general
 rm -rf "$mix" && mkdir -p "$mix/train" "$mix/val"
 link() { # SPLIT_DIR_OF_SCENE... DEST N: sample i of scene k becomes DEST/(3i + k)
   local dest=$1 n=$2 k
+  # Absolute targets: a link is read from its own folder, so a relative root would dangle.
+  for k in 0 1 2; do srcs[$k]=$(realpath "${srcs[$k]}"); done
   for i in $(seq 0 $((n - 1))); do
     for k in 0 1 2; do
       ln -s "${srcs[$k]}/$(printf %06d "$i")" "$dest/$(printf %06d $((3 * i + k)))"

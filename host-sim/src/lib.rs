@@ -1,5 +1,6 @@
 //! The epssn host tool's own modules: the main job (`host-sim run`, `host-sim bundle`), the
-//! labels of a recording from its site (`host-sim label`) and the depth figures. Every other
+//! labels of a recording from its site (`host-sim label`), the depth figures, the run as an MCAP
+//! file of ROS 2 messages (`mcap_out`) and the sweep's clouds in one frame (`sweep`). Every other
 //! subcommand lives in the host crate of its role (`epssn-aris`, `epssn-sim`, `epssn-quant`,
 //! `epssn-train`, `epssn-sil`); `main.rs` only dispatches.
 
@@ -7,4 +8,6 @@
 
 pub mod figure;
 pub mod label;
+pub mod mcap_out;
 pub mod run;
+pub mod sweep;

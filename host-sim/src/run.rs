@@ -19,6 +19,8 @@ use fixed::types::U16F16;
 use serde::Serialize;
 
 use crate::figure;
+use crate::mcap_out::{self, PairMessages, RunMessages};
+use crate::sweep::{self, CloudFrame};
 use epssn_aris::aris::ArisReader;
 use epssn_aris::{npy, polar};
 use epssn_reference::{floatref, reference_model, weights};
@@ -50,6 +52,19 @@ pub struct RunArgs {
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Also write the run as ROS 2 messages (CDR) in this MCAP file: images, depth maps,
+    /// point clouds, the sonar's transforms, the pair checks and the summary (docs/MCAP.md).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
+    /// Frame of the clouds: `sonar`, each pair in its reference view's sonar frame; `world`
+    /// also merges every pair by its reference frame's attitude (and `--poses` positions) into
+    /// `world.ply` and, with `--mcap`, one merged cloud.
+    #[arg(long, value_enum, default_value_t = CloudFrame::Sonar)]
+    pub frame: CloudFrame,
+    /// Each frame's position in the site (`frame,x_m,y_m,z_m,roll_deg,pitch_deg,yaw_deg`, as
+    /// `bundle` writes and `label` reads): moves the world-frame clouds and the transforms.
+    #[arg(long)]
+    pub poses: Option<PathBuf>,
 }
 
 /// What decides the depth maps a recording gives: `run` and `label` share it, so `label`
@@ -329,10 +344,16 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     std::fs::create_dir_all(&args.out)?;
     let images = polar_images(args, &reader, &frames, &groups)?;
 
+    let poses = match &args.poses {
+        Some(p) => Some(epssn_sim::poses::load(p, reader.frame_count())?),
+        None => None,
+    };
+
     // The library computes each group's features and depth in one call and hands the
     // features back for the bit-exactness check.
     let mut ws = Box::new(Workspace::new());
     let mut details = Vec::new();
+    let mut computed = Vec::new();
     for group in &groups {
         let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
         let maps = depth_maps(&model, &bundle, &views, &mut ws)
@@ -344,7 +365,24 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         let name = format!("frame{:04}", group[0]);
         write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
         details.push(pair_report(group, &frames, &maps, gt.as_ref())?);
+        computed.push((maps, gt));
     }
+    let mut warnings = warnings;
+    let clouds: Vec<(usize, Vec<epssn_mcap::msgs::SonarPoint>)> = groups
+        .iter()
+        .zip(&computed)
+        .map(|(g, (maps, _))| Ok((g[0], mcap_out::sonar_points(&maps.int8, &images[&g[0]])?)))
+        .collect::<Result<_>>()?;
+    let merged = match args.frame {
+        CloudFrame::Sonar => None,
+        CloudFrame::World => world_cloud(
+            &args.out,
+            &clouds,
+            &frames.attitudes,
+            poses.as_ref(),
+            &mut warnings,
+        )?,
+    };
     let summary = Summary {
         recording: recording.display().to_string(),
         weights: weights_dir.display().to_string(),
@@ -370,16 +408,94 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
         warnings,
     };
-    std::fs::write(
-        args.out.join("summary.json"),
-        serde_json::to_string_pretty(&summary)?,
-    )?;
+    let summary_json = serde_json::to_string_pretty(&summary)?;
+    std::fs::write(args.out.join("summary.json"), &summary_json)?;
+    if let Some(path) = &args.mcap {
+        let pairs: Vec<PairMessages> = groups
+            .iter()
+            .zip(&computed)
+            .map(|(g, (maps, gt))| PairMessages {
+                frames: g,
+                int8: &maps.int8,
+                float: &maps.float,
+                truth: gt.as_ref().map(|(d, _)| d.as_slice()),
+                polar: &images[&g[0]],
+            })
+            .collect();
+        // Every frame's attitude, bursts' other pings included: the transforms show the
+        // sonar's motion, not only the views the pairing kept.
+        let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+            .map(|i| frame_attitude(&reader, i))
+            .collect();
+        let positions: BTreeMap<usize, [f64; 3]> = poses
+            .iter()
+            .flatten()
+            .map(|(&f, p)| (f, p.position_m))
+            .collect();
+        let run = RunMessages {
+            candidates: &summary.candidates,
+            pairs: &pairs,
+            attitudes: &attitudes,
+            positions: &positions,
+            sweep: merged.as_deref(),
+            summary_json: &summary_json,
+        };
+        mcap_out::write(path, &reader, &run)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     if args.json {
         writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
     } else {
         print_summary(&summary, &bundle.description, &args.out, out)?;
+        if merged.is_some() {
+            writeln!(
+                out,
+                "wrote the pairs merged in the world frame to world.ply"
+            )?;
+        }
+        if let Some(path) = &args.mcap {
+            writeln!(
+                out,
+                "wrote {} (ROS 2 messages, docs/MCAP.md)",
+                path.display()
+            )?;
+        }
     }
     Ok(())
+}
+
+/// `--frame world`: every placed pair's int8 cloud merged into `dir/world.ply`; `None`, with
+/// the reason among the warnings, when no pair can be placed. Pairs that cannot are named.
+fn world_cloud(
+    dir: &Path,
+    clouds: &[(usize, Vec<epssn_mcap::msgs::SonarPoint>)],
+    attitudes: &[Option<Attitude>],
+    poses: Option<&BTreeMap<usize, SitePose>>,
+    warnings: &mut Vec<String>,
+) -> Result<Option<Vec<epssn_mcap::msgs::SonarPoint>>> {
+    let refs: Vec<usize> = clouds.iter().map(|(f, _)| *f).collect();
+    let placement = sweep::place(&refs, attitudes, poses);
+    warnings.extend(placement.warnings.iter().cloned());
+    let why = |(f, reason): (&usize, &String)| format!("frame {f}: {reason}");
+    if placement.transforms.is_empty() {
+        let reasons: Vec<String> = placement.missing.iter().map(why).collect();
+        warnings.push(format!(
+            "no world-frame cloud: no pair's reference frame can be placed ({})",
+            reasons.join("; ")
+        ));
+        return Ok(None);
+    }
+    if !placement.missing.is_empty() {
+        let reasons: Vec<String> = placement.missing.iter().map(why).collect();
+        warnings.push(format!(
+            "world-frame cloud without {} pair(s): {}",
+            reasons.len(),
+            reasons.join("; ")
+        ));
+    }
+    let merged = sweep::merge(clouds, &placement);
+    sweep::write_merged_ply(&dir.join("world.ply"), &merged)?;
+    Ok(Some(merged))
 }
 
 /// The library's model of a blob, refused with the folder's name.

@@ -101,6 +101,34 @@ impl RigidTransform {
         translation: [0.0; 3],
     };
 
+    /// The rotation of a quaternion `[w, x, y, z]` (normalised in f64: the link's values are
+    /// kept as sent, up to 2 % off unit norm), then `translation_m`.
+    pub fn from_quaternion(q: [f32; 4], translation_m: [f64; 3]) -> Self {
+        let [w, x, y, z] = q.map(f64::from);
+        let n = sqrt(w * w + x * x + y * y + z * z);
+        let [w, x, y, z] = [w / n, x / n, y / n, z / n];
+        Self {
+            rotation: [
+                [
+                    1.0 - 2.0 * (y * y + z * z),
+                    2.0 * (x * y - w * z),
+                    2.0 * (x * z + w * y),
+                ],
+                [
+                    2.0 * (x * y + w * z),
+                    1.0 - 2.0 * (x * x + z * z),
+                    2.0 * (y * z - w * x),
+                ],
+                [
+                    2.0 * (x * z - w * y),
+                    2.0 * (y * z + w * x),
+                    1.0 - 2.0 * (x * x + y * y),
+                ],
+            ],
+            translation: translation_m,
+        }
+    }
+
     /// Reference → source map for a sonar rolled by `roll_deg` about its own forward axis
     /// through the acoustic centre: `p_src = R_x(−roll) p_ref`.
     pub fn roll_deg(roll_deg: f64) -> Self {

@@ -1,5 +1,5 @@
-//! Triangle meshes of sites on disk: binary and ASCII STL, OBJ and PLY read through `stl_io`,
-//! `tobj` and `ply-rs-bw`, and written back (binary STL, OBJ, ASCII PLY).
+//! Triangle meshes of sites on disk: binary and ASCII STL through `stl_io`, PLY through
+//! `ply-rs-bw`, OBJ by a reader of its own, and written back (binary STL, OBJ, ASCII PLY).
 //!
 //! A mesh is in metres, z up, its triangles in file order with f32 vertices (STL's own
 //! precision), wound counter-clockwise seen from the water: the right-hand normal points away
@@ -11,7 +11,7 @@
 //! [`MeshError`]; none panics on any input (the fuzz targets `mesh_stl`, `mesh_obj`, `mesh_ply`).
 
 use std::collections::HashMap;
-use std::io::{BufReader, Cursor, Write};
+use std::io::{Cursor, Write};
 use std::path::Path;
 
 use sha2::{Digest, Sha256};
@@ -192,49 +192,107 @@ fn parse_stl(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
     Ok(out)
 }
 
-/// OBJ through `tobj`: every object in file order, its polygons fanned into triangles; no
-/// material file is read (a site has one reflectivity).
+/// Wavefront OBJ, read here rather than through a crate so that every index is checked
+/// before it is used: `v x y z [w]` lines give the vertices, `f` lines the polygons (each
+/// corner `v`, `v/vt`, `v//vn` or `v/vt/vn`; only `v` is used), fanned into triangles from
+/// their first corner. A positive index counts from 1 over the whole file; a negative one
+/// counts back from the last vertex read before its face. Comments (`#`), line continuations
+/// (`\`) and every other statement (texture, normal, group, material, line, point) are
+/// skipped: a site has one reflectivity.
 fn parse_obj(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
-    let options = tobj::LoadOptions {
-        triangulate: true,
-        ignore_points: true,
-        ignore_lines: true,
-        ..tobj::LoadOptions::default()
-    };
-    let mut reader = BufReader::new(Cursor::new(bytes));
-    let (models, _) = tobj::load_obj_buf(&mut reader, &options, |_| {
-        Ok((Vec::new(), Default::default()))
-    })
-    .map_err(|e| broken("OBJ", e))?;
-    let mut out = Vec::new();
-    let mut face = 0usize;
-    for model in &models {
-        let m = &model.mesh;
-        let vertices = m.positions.len() / 3;
-        for tri in m.indices.chunks(3) {
-            let mut t = [[0f32; 3]; 3];
-            if tri.len() < 3 {
-                return Err(broken(
-                    "OBJ",
-                    format!("face {face} has fewer than 3 vertices"),
-                ));
-            }
-            for (corner, &i) in t.iter_mut().zip(tri) {
-                let i = i as usize;
-                if i >= vertices {
-                    return Err(MeshError::BadIndex {
-                        face,
-                        index: i as i64,
-                        vertices,
-                    });
+    let text = String::from_utf8_lossy(bytes);
+    let mut vertices: Vec<[f32; 3]> = Vec::new();
+    // Each polygon's corners as 0-based indices, resolved once every vertex is known.
+    let mut polygons: Vec<(usize, Vec<(i64, i64)>)> = Vec::new();
+    for (number, line) in logical_lines(&text) {
+        let line = line.split('#').next().unwrap_or("");
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                let mut p = [0f32; 3];
+                for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
+                    *c = words.next().and_then(|w| w.parse().ok()).ok_or_else(|| {
+                        broken(
+                            "OBJ",
+                            format!("line {number}: vertex has no numeric {axis}"),
+                        )
+                    })?;
                 }
-                corner.copy_from_slice(&m.positions[3 * i..3 * i + 3]);
+                vertices.push(p);
             }
-            out.push(t);
-            face += 1;
+            Some("f") => {
+                let face = polygons.len();
+                let corners = words
+                    .map(|w| obj_corner(w, vertices.len()))
+                    .collect::<Option<Vec<_>>>()
+                    .ok_or_else(|| broken("OBJ", format!("line {number}: face {face} has a corner that is not a vertex index")))?;
+                if corners.len() < 3 {
+                    return Err(broken(
+                        "OBJ",
+                        format!("face {face} has fewer than 3 vertices"),
+                    ));
+                }
+                polygons.push((face, corners));
+            }
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    for (face, corners) in &polygons {
+        let corner = |&(i, written): &(i64, i64)| -> Result<[f32; 3], MeshError> {
+            usize::try_from(i)
+                .ok()
+                .and_then(|u| vertices.get(u).copied())
+                .ok_or(MeshError::BadIndex {
+                    face: *face,
+                    index: written,
+                    vertices: vertices.len(),
+                })
+        };
+        for k in 1..corners.len() - 1 {
+            out.push([
+                corner(&corners[0])?,
+                corner(&corners[k])?,
+                corner(&corners[k + 1])?,
+            ]);
         }
     }
     Ok(out)
+}
+
+/// OBJ's lines with their 1-based numbers, a line ending in `\` joined to the next.
+fn logical_lines(text: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    let mut pending: Option<(usize, String)> = None;
+    for (i, raw) in text.lines().enumerate() {
+        let (number, mut line) = pending.take().unwrap_or((i + 1, String::new()));
+        match raw.strip_suffix('\\') {
+            Some(head) => {
+                line.push_str(head);
+                line.push(' ');
+                pending = Some((number, line));
+            }
+            None => {
+                line.push_str(raw);
+                out.push((number, line));
+            }
+        }
+    }
+    out.extend(pending);
+    out
+}
+
+/// A face corner's 0-based vertex index and the index as written: positive indices count
+/// from 1, negative ones back from the `read` vertices so far. None for zero or a word that is
+/// not an integer; an index past the end is left for the caller to refuse once the file is read.
+fn obj_corner(word: &str, read: usize) -> Option<(i64, i64)> {
+    let written: i64 = word.split('/').next()?.parse().ok()?;
+    let resolved = match written {
+        0 => return None,
+        i if i > 0 => i - 1,
+        i => (read as i64).checked_add(i)?,
+    };
+    Some((resolved, written))
 }
 
 /// PLY through `ply-rs-bw`: the `vertex` element's x, y, z (any numeric type, as f32) and the
@@ -279,7 +337,7 @@ fn parse_ply(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
                     vertices: vertices.len(),
                 })
         };
-        // A polygon as a fan from its first vertex, as tobj triangulates OBJ polygons.
+        // A polygon as a fan from its first vertex, as OBJ polygons are.
         for k in 1..list.len() - 1 {
             out.push([corner(list[0])?, corner(list[k])?, corner(list[k + 1])?]);
         }
@@ -458,7 +516,11 @@ mod tests {
         )
         .contains("broken STL"));
         assert!(err(b"", MeshFormat::Obj).contains("no triangles"));
-        assert!(err(b"v 0 0 0\nv 1 0 0\nf 1 2 9\n", MeshFormat::Obj).contains("OBJ"));
+        assert!(err(b"v 0 0 0\nv 1 0 0\nf 1 2 9\n", MeshFormat::Obj).contains("vertex 9"));
+        assert!(err(b"v 0 0 0\nv 1 0 0\nf 1 2 -3\n", MeshFormat::Obj).contains("vertex -3"));
+        assert!(err(b"v 0 0 0\nv 1 0 0\nf 1 2 0\n", MeshFormat::Obj).contains("broken OBJ"));
+        assert!(err(b"v 0 0\nf 1 1 1\n", MeshFormat::Obj).contains("numeric z"));
+        assert!(err(b"v 0 0 0\nf 1 1\n", MeshFormat::Obj).contains("fewer than 3"));
         assert!(
             err(b"v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", MeshFormat::Obj).contains("non-finite")
         );
@@ -472,6 +534,39 @@ mod tests {
             property list uchar int vertex_indices\nend_header\n0 0 0\n3 0 0 5\n";
         assert!(err(bad_index, MeshFormat::Ply).contains("vertex 5"));
         assert!(read_mesh(Path::new("site.dxf")).is_err());
+    }
+
+    /// What exporters write beyond `v` and `f` lines: texture and normal indices, negative
+    /// (relative) indices, quads, groups, comments and continued lines, all read as the same
+    /// two triangles.
+    #[test]
+    fn obj_as_exporters_write_it_reads_as_the_same_triangles() {
+        let plain = parse_mesh(
+            b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+            MeshFormat::Obj,
+        )
+        .unwrap();
+        let written = b"# exported\nmtllib site.mtl\no tank\ng wall\nv 0 0 0\nv 1 0 0 1.0\n\
+            v 1 1 0\nv 0 1 0 # corner\nvt 0 0\nvn 0 0 1\nusemtl steel\ns off\n\
+            f -4/1/1 -3/1/1 \\\n -2//1 -1/1\nl 1 2\np 3\n";
+        assert_eq!(parse_mesh(written, MeshFormat::Obj).unwrap(), plain);
+        assert_eq!(plain.triangles.len(), 2);
+        assert_eq!(
+            plain.triangles[1],
+            [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
+        );
+    }
+
+    /// Inputs the fuzz target found, kept so that they stay errors.
+    #[test]
+    fn obj_fuzz_findings_are_refused() {
+        // A texture index far past the end with a vertex index past i64's range of products.
+        let huge = b"vt 0 0\nf 1/ 2/-2161 5 6 2\nf -21/1  0 1 0\nv 0 0 1\nf -1 -2 -7\n";
+        assert!(parse_mesh(huge, MeshFormat::Obj).is_err());
+        let beyond = format!("v 0 0 0\nf 1 1 -{}\n", u64::MAX);
+        assert!(parse_mesh(beyond.as_bytes(), MeshFormat::Obj).is_err());
+        let far = format!("v 0 0 0\nf 1 1 {}\n", i64::MAX);
+        assert!(parse_mesh(far.as_bytes(), MeshFormat::Obj).is_err());
     }
 
     /// Every prefix and many one-byte changes of valid files: errors or meshes, never a panic

@@ -335,26 +335,8 @@ mod tests {
             0.0,
             0.0,
         )
-        .unwrap()
-        .to_array();
-        let [w, x, y, z] = q.map(f64::from);
-        [
-            [
-                1.0 - 2.0 * (y * y + z * z),
-                2.0 * (x * y - w * z),
-                2.0 * (x * z + w * y),
-            ],
-            [
-                2.0 * (x * y + w * z),
-                1.0 - 2.0 * (x * x + z * z),
-                2.0 * (y * z - w * x),
-            ],
-            [
-                2.0 * (x * z - w * y),
-                2.0 * (y * z + w * x),
-                1.0 - 2.0 * (x * x + y * y),
-            ],
-        ]
+        .unwrap();
+        RigidTransform::from_quaternion(q.to_array(), [0.0; 3]).rotation
     }
 
     fn max_diff(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> f64 {

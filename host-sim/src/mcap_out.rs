@@ -1,0 +1,246 @@
+//! `run --mcap FILE`: the run as ROS 2 messages in one MCAP file (docs/MCAP.md lists the
+//! topics, frames and types). Every message is stamped with its ARIS frame's FrameTime (a depth
+//! map, its clouds and its pair check with the reference frame's), and messages are written in
+//! frame order, each frame's after the one before, so a file cut short holds a prefix of the
+//! recording; the merged sweep and the run's summary close the file at the last frame's time.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use epssn::attitude::Attitude;
+use epssn::config;
+use epssn_aris::aris::ArisReader;
+use epssn_aris::polar;
+use epssn_mcap::fan::fan;
+use epssn_mcap::msgs::{
+    Header, Image, PointCloud2, Quaternion, SonarPoint, StringMsg, TfMessage, Time, Transform,
+    TransformStamped, Vector3,
+};
+use epssn_mcap::Bag;
+use epssn_sim::metrics;
+
+use crate::run::CandidateReport;
+
+/// The TF frame of everything measured in the sonar's own frame (x forward, y left, z up).
+pub const SONAR_FRAME: &str = "sonar";
+/// The TF frame the sonar is placed in (the attitude's level frame; the site's with poses).
+pub const WORLD_FRAME: &str = "world";
+
+/// The topics, in one place for the docs and the tests.
+pub mod topic {
+    /// Polar image (range bins × beam columns), mono8, every frame.
+    pub const POLAR: &str = "/sonar/polar";
+    /// The polar image as the Cartesian fan seen from above, mono8, every frame.
+    pub const FAN: &str = "/sonar/fan";
+    /// world ← sonar per frame with attitude.
+    pub const TF: &str = "/tf";
+    /// The pose gate's verdict on each candidate pair, JSON.
+    pub const PAIR_CHECK: &str = "/pairing/check";
+    /// Depth maps, 32FC1 metres, elevation rows × azimuth columns.
+    pub const DEPTH_INT8: &str = "/depth/int8";
+    /// The float model's depth map.
+    pub const DEPTH_FLOAT: &str = "/depth/float";
+    /// The ground truth's depth map.
+    pub const DEPTH_TRUTH: &str = "/depth/ground_truth";
+    /// The int8 map's returns, sonar frame.
+    pub const POINTS_INT8: &str = "/points/int8";
+    /// The float map's returns, sonar frame.
+    pub const POINTS_FLOAT: &str = "/points/float";
+    /// Every pair's int8 returns merged in the world frame (`--frame world`).
+    pub const SWEEP: &str = "/sweep/points";
+    /// The run's summary (`run --json`'s), JSON.
+    pub const SUMMARY: &str = "/run/summary";
+}
+
+/// One depth map of the run, as the MCAP file needs it.
+pub struct PairMessages<'a> {
+    /// Frames, reference first.
+    pub frames: &'a [usize],
+    /// The library's int8 depth map.
+    pub int8: &'a [f32],
+    /// The float model's.
+    pub float: &'a [f32],
+    /// Ground truth, when there is some.
+    pub truth: Option<&'a [f32]>,
+    /// The reference view's polar image (pings averaged), for the points' intensity.
+    pub polar: &'a [u8],
+}
+
+/// A depth map's returns (its own mask, `metrics::prediction_mask`: the points of its PLY),
+/// each with its range and the reference view's echo intensity at that range and azimuth.
+pub fn sonar_points(depth: &[f32], polar: &[u8]) -> Result<Vec<SonarPoint>> {
+    let mask = metrics::prediction_mask(depth);
+    let xyz = metrics::depth_points(depth, &mask)?;
+    let bin = (config::R_MAX_M - config::R_MIN_M) / config::INPUT_RANGE_BINS as f64;
+    // depth_points walks the map row by row as this does, so the i-th set pixel is xyz[i].
+    let returns = (0..depth.len()).filter(|&i| mask[i]);
+    Ok(returns
+        .zip(xyz)
+        .map(|(i, p)| {
+            let range = depth[i];
+            let b = ((f64::from(range) - config::R_MIN_M) / bin) as usize;
+            let column = i % config::DEPTH_COLUMNS;
+            let intensity = polar
+                .get(b.min(config::INPUT_RANGE_BINS - 1) * config::INPUT_COLUMNS + column)
+                .map_or(0.0, |&v| f32::from(v));
+            SonarPoint {
+                xyz: p.map(|v| v as f32),
+                range,
+                intensity,
+                pair: None,
+            }
+        })
+        .collect())
+}
+
+/// A header at FrameTime `time_us`.
+fn header(time_us: u64, frame_id: &str) -> Result<Header> {
+    Ok(Header {
+        stamp: Time::from_ns(ns(time_us)?)?,
+        frame_id: frame_id.into(),
+    })
+}
+
+fn ns(time_us: u64) -> Result<u64> {
+    time_us
+        .checked_mul(1000)
+        .with_context(|| format!("FrameTime {time_us} µs overflows nanoseconds"))
+}
+
+/// world ← sonar at a frame.
+fn tf(time_us: u64, attitude: &Attitude, position_m: [f64; 3]) -> Result<TfMessage> {
+    let [w, x, y, z] = attitude.to_array().map(f64::from);
+    let [tx, ty, tz] = position_m;
+    Ok(TfMessage {
+        transforms: vec![TransformStamped {
+            header: header(time_us, WORLD_FRAME)?,
+            child_frame_id: SONAR_FRAME.into(),
+            transform: Transform {
+                translation: Vector3 {
+                    x: tx,
+                    y: ty,
+                    z: tz,
+                },
+                rotation: Quaternion { x, y, z, w },
+            },
+        }],
+    })
+}
+
+/// What the file holds beyond the recording's frames.
+pub struct RunMessages<'a> {
+    /// Every candidate with the pose gate's verdict.
+    pub candidates: &'a [CandidateReport],
+    /// Every depth map.
+    pub pairs: &'a [PairMessages<'a>],
+    /// Each frame's attitude (`None`: no transform for it).
+    pub attitudes: &'a [Option<Attitude>],
+    /// Positions from the poses file, by frame (else the origin).
+    pub positions: &'a BTreeMap<usize, [f64; 3]>,
+    /// The merged cloud, world frame, when one was made.
+    pub sweep: Option<&'a [SonarPoint]>,
+    /// The run's summary, JSON.
+    pub summary_json: &'a str,
+}
+
+/// Writes the run's MCAP file.
+pub fn write(path: &Path, reader: &ArisReader, run: &RunMessages) -> Result<()> {
+    let mut bag = Bag::create(path)?;
+    let mut last_us = 0;
+    for f in 0..reader.frame_count() {
+        let frame = reader.frame(f)?;
+        let t = frame.header.frame_time_us;
+        last_us = last_us.max(t);
+        write_frame(&mut bag, f, &frame, run).with_context(|| format!("frame {f}"))?;
+    }
+    let end = ns(last_us)?;
+    if let Some(points) = run.sweep {
+        let cloud = PointCloud2::of_points(header(last_us, WORLD_FRAME)?, points)?;
+        bag.write(topic::SWEEP, end, &cloud)?;
+    }
+    bag.write(
+        topic::SUMMARY,
+        end,
+        &StringMsg {
+            data: run.summary_json.to_string(),
+        },
+    )?;
+    bag.finish()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// One frame's messages: its images and transform, and the pair checks and depth maps whose
+/// reference it is.
+fn write_frame(
+    bag: &mut Bag,
+    f: usize,
+    frame: &epssn_aris::aris::Frame,
+    run: &RunMessages,
+) -> Result<()> {
+    let t = frame.header.frame_time_us;
+    let time = ns(t)?;
+    let polar = polar::frame_to_polar(frame)?;
+    let fan = fan(&polar)?;
+    bag.write(
+        topic::FAN,
+        time,
+        &Image::mono8(header(t, SONAR_FRAME)?, fan.width, fan.height, fan.pixels)?,
+    )?;
+    bag.write(
+        topic::POLAR,
+        time,
+        &Image::mono8(
+            header(t, SONAR_FRAME)?,
+            config::INPUT_COLUMNS,
+            config::INPUT_RANGE_BINS,
+            polar,
+        )?,
+    )?;
+    if let Some(a) = run.attitudes.get(f).copied().flatten() {
+        let position = run.positions.get(&f).copied().unwrap_or([0.0; 3]);
+        bag.write(topic::TF, time, &tf(t, &a, position)?)?;
+    }
+    for c in run
+        .candidates
+        .iter()
+        .filter(|c| c.frames.first() == Some(&f))
+    {
+        let json = serde_json::to_string(c)?;
+        bag.write(topic::PAIR_CHECK, time, &StringMsg { data: json })?;
+    }
+    for p in run.pairs.iter().filter(|p| p.frames.first() == Some(&f)) {
+        write_pair(bag, t, p)?;
+    }
+    Ok(())
+}
+
+/// A depth map's images and clouds.
+fn write_pair(bag: &mut Bag, t: u64, p: &PairMessages) -> Result<()> {
+    let time = ns(t)?;
+    let (w, h) = (config::DEPTH_COLUMNS, config::DEPTH_ROWS);
+    let maps = [
+        (topic::DEPTH_INT8, Some(p.int8)),
+        (topic::DEPTH_FLOAT, Some(p.float)),
+        (topic::DEPTH_TRUTH, p.truth),
+    ];
+    for (name, map) in maps {
+        if let Some(d) = map {
+            bag.write(
+                name,
+                time,
+                &Image::float32(header(t, SONAR_FRAME)?, w, h, d)?,
+            )?;
+        }
+    }
+    for (name, d) in [(topic::POINTS_INT8, p.int8), (topic::POINTS_FLOAT, p.float)] {
+        let points = sonar_points(d, p.polar)?;
+        bag.write(
+            name,
+            time,
+            &PointCloud2::of_points(header(t, SONAR_FRAME)?, &points)?,
+        )?;
+    }
+    Ok(())
+}
