@@ -15,3 +15,4 @@ mod device;
 pub mod faults;
 pub mod serial;
 pub mod sil;
+pub mod target;
