@@ -16,3 +16,4 @@ pub mod faults;
 pub mod resets;
 pub mod serial;
 pub mod sil;
+pub mod target;

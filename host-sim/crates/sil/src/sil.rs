@@ -29,10 +29,10 @@ use serde::Serialize;
 use epssn_aris::aris::ArisReader;
 use epssn_aris::polar::frame_to_polar;
 
-pub(crate) use crate::device::qemu_m7;
 use crate::device::{Device, Reply};
 pub use crate::faults::FuzzReport;
 use crate::faults::{campaign, fuzz, FaultReport};
+use crate::target::Target;
 
 /// Arguments of `host-sim sil`.
 #[derive(Args, Debug, Clone)]
@@ -43,9 +43,13 @@ pub struct SilArgs {
     /// Print machine-readable JSON.
     #[arg(long)]
     pub json: bool,
-    /// The firmware ELF (default: build firmware/ in release and use it).
+    /// The firmware ELF (default: build the target's firmware crate in release and use it).
     #[arg(long)]
     pub firmware: Option<PathBuf>,
+    /// The core to run on: `m7` (QEMU mps2-an500, `firmware/`) or `m55` (QEMU mps3-an547,
+    /// `boards/mps3-an547`, budgets `weights/budgets-m55.json`).
+    #[arg(long, value_enum, default_value_t = Target::M7)]
+    pub target: Target,
     /// Stream at most this many frames.
     #[arg(long)]
     pub frames: Option<usize>,
@@ -68,7 +72,7 @@ pub struct SilArgs {
     /// Seconds to wait for any one reply.
     #[arg(long, default_value_t = 120)]
     pub timeout: u64,
-    /// The budgets file (default: `weights/budgets.json`).
+    /// The budgets file (default: the target's, `weights/budgets.json` for the M7).
     #[arg(long)]
     pub budgets: Option<PathBuf>,
     /// Talk to a real board on this serial port (e.g. `/dev/ttyACM0`, the ST-LINK's virtual
@@ -121,6 +125,8 @@ pub struct SilReport {
     pub firmware: String,
     /// Where the firmware ran: "qemu" or the serial port.
     pub device: String,
+    /// The core QEMU emulated: "m7" or "m55".
+    pub target: Target,
     /// What the cost figures count: "instructions" (QEMU `-icount`) or "cycles" (a board's
     /// cycle counter, over `--serial`).
     pub cost_unit: String,
@@ -195,13 +201,15 @@ fn firmware_blob() -> Result<Vec<u8>> {
 /// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
-    build_firmware_with(None)
+    build_firmware_with(Target::M7, None)
 }
 
-/// [`build_firmware`] with a cargo feature of the firmware (a test build, in a target
-/// directory of its own, `<target>/<feature>`, so it never replaces the shipped build).
-pub fn build_firmware_with(feature: Option<&str>) -> Result<PathBuf> {
-    let dir = epssn_spec::load::repo_root().join("firmware");
+/// [`build_firmware`] for `target_core`'s firmware crate (`boards/mps3-an547` for the M55, in
+/// its own `target/`, per spec the same way), with a cargo feature of it if given (a test
+/// build, in a target directory of its own, `<target>/<feature>`, so it never replaces the
+/// shipped build).
+pub fn build_firmware_with(target_core: Target, feature: Option<&str>) -> Result<PathBuf> {
+    let dir = epssn_spec::load::repo_root().join(target_core.crate_dir());
     let spec_file = epssn::config::SPEC_FILE_NAME;
     let mut target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
     let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
@@ -227,7 +235,7 @@ pub fn build_firmware_with(feature: Option<&str>) -> Result<PathBuf> {
     if !status.success() {
         bail!("firmware build failed ({status})");
     }
-    Ok(target.join("thumbv7em-none-eabihf/release/epssn-firmware"))
+    Ok(target_core.elf_in(&target))
 }
 
 /// Flash and static RAM of the ELF, from its section sizes.
@@ -485,14 +493,24 @@ fn soak(
 /// The firmware ELF (built unless named), its flash and static RAM, and the device running
 /// it: QEMU, or the board on `--serial`.
 fn open_device(args: &SilArgs, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
+    if args.reset_faults > 0 && args.target != Target::M7 {
+        bail!(
+            "--reset-faults needs the Cortex-M7 firmware (firmware/): the {:?} board has no \
+             watchdog or fault record yet",
+            args.target
+        );
+    }
     Ok(match &args.serial {
         None => {
             let elf = match &args.firmware {
                 Some(p) => p.clone(),
-                None => build_firmware_with((args.reset_faults > 0).then_some("reset-faults"))?,
+                None => build_firmware_with(
+                    args.target,
+                    (args.reset_faults > 0).then_some("reset-faults"),
+                )?,
             };
             let sizes = elf_sizes(&elf)?;
-            let device = Device::boot(&elf, timeout)?;
+            let device = Device::boot(&elf, timeout, args.target)?;
             (elf, sizes, device)
         }
         Some(port) => {
@@ -664,7 +682,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         &args
             .budgets
             .clone()
-            .unwrap_or_else(crate::budgets::default_path),
+            .unwrap_or_else(|| args.target.budgets_path()),
     )?;
     let ram = static_ram + u64::from(status.stack_high_water);
     // The budgets are the QEMU build's (instructions, its flash and RAM): not a board's cycles.
@@ -683,6 +701,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
             .serial
             .as_ref()
             .map_or_else(|| "qemu".to_string(), |p| p.display().to_string()),
+        target: args.target,
         cost_unit: if args.serial.is_some() {
             "cycles"
         } else {
@@ -737,7 +756,11 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
 /// The report as text, for a person.
 fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
     writeln!(out, "recording: {}", r.recording)?;
-    writeln!(out, "firmware: {} (on {})", r.firmware, r.device)?;
+    writeln!(
+        out,
+        "firmware: {} (on {}, {:?})",
+        r.firmware, r.device, r.target
+    )?;
     writeln!(
         out,
         "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
@@ -908,7 +931,7 @@ fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
         let file = args
             .budgets
             .clone()
-            .unwrap_or_else(crate::budgets::default_path);
+            .unwrap_or_else(|| args.target.budgets_path());
         bail!(
             "SIL: over budget ({}): {}",
             file.display(),
