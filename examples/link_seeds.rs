@@ -16,6 +16,7 @@ fn main() {
     let depth: Vec<U16F16> = (0..config::DEPTH_LEN)
         .map(|i| U16F16::from_num(2.0 + (i % 97) as f64 / 64.0))
         .collect();
+    let record = epssn::fault::Record::panic(&"index out of bounds", "src/x.rs", 12, 5).to_bytes();
     let mut sources = heapless::Vec::new();
     let _ = sources.push(4);
     let messages = [
@@ -44,6 +45,21 @@ fn main() {
             msg: "sequence",
         },
         Message::Shutdown { seq: 8 },
+        // The device's hello with its fault record, and the host's that acknowledges it.
+        Message::Hello {
+            seq: 1,
+            status: Some(Status::default()),
+            reset: Some(epssn::fault::ResetCause::Panic),
+            record: Some(&record),
+            ack: None,
+        },
+        Message::Hello {
+            seq: 0,
+            status: None,
+            reset: None,
+            record: None,
+            ack: Some(0x1234_5678),
+        },
     ];
     let mut stream = Vec::new();
     let mut buf = vec![0u8; MAX_MESSAGE_LEN];

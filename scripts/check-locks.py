@@ -14,7 +14,7 @@ from collections import defaultdict
 from pathlib import Path
 
 LOCKS = ["Cargo.lock", "firmware/Cargo.lock", "qemu-check/Cargo.lock",
-         "boards/stm32h743/Cargo.lock", "fuzz/Cargo.lock"]
+         "boards/stm32h743/Cargo.lock", "boards/mps3-an547/Cargo.lock", "fuzz/Cargo.lock"]
 
 
 def line(version: str) -> str:

@@ -8,10 +8,12 @@ cd "$(dirname "$0")/.."
 step() { printf '\n==> %s\n' "$*"; }
 
 step "toolchain and tools"
-# rust-toolchain.toml names the toolchain, its components and the Cortex-M7 target; rustup
+# rust-toolchain.toml names the toolchain, its components and the Cortex-M7 and M55 targets; rustup
 # installs whatever of them is missing.
 rustup show active-toolchain
 rustup target list --installed | grep -qx thumbv7em-none-eabihf || rustup target add thumbv7em-none-eabihf
+# The Cortex-M55 board (boards/mps3-an547).
+rustup target list --installed | grep -qx thumbv8m.main-none-eabihf || rustup target add thumbv8m.main-none-eabihf
 rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
 rustup component list --installed | grep -q '^clippy' || rustup component add clippy
 if ! command -v qemu-system-arm >/dev/null 2>&1; then
@@ -61,6 +63,13 @@ echo "(DTCM: statics above; the stack is the rest of DTCM, below them; board ste
 step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"
 (cd qemu-check && cargo fmt -- --check && cargo clippy --release -- -D warnings && timeout 600 cargo run --release)
 
+step "Cortex-M55 (QEMU mps3-an547): format, clippy, release build, boot self-test"
+# Its own workspace and target directory (boards/mps3-an547/target); the same self-test crate.
+m55_start=$SECONDS
+(cd boards/mps3-an547 && cargo fmt -- --check && cargo clippy --release -- -D warnings \
+    && timeout 300 cargo run --release)
+echo "(M55 step $((SECONDS - m55_start)) s)"
+
 step "documentation (workspace, warnings denied)"
 RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 
@@ -73,6 +82,15 @@ step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
 host_sim="$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim"
 "$host_sim" sil --json
+
+step "device resets in QEMU: watchdog on a hang, fault record on a panic and a stack overflow"
+# A test build of the firmware (feature reset-faults, its own target directory) hangs, panics
+# and overflows its stack on request; each reset's cause and record must come back in the next
+# hello, and the depth maps after it must be bit-exact (docs/LINK.md "Resets"; about 50 s).
+"$host_sim" sil --frames 6 --faults 0 --reset-faults 1 --json
+
+step "software in the loop on the Cortex-M55 (mps3-an547): bit for bit, weights/budgets-m55.json"
+"$host_sim" sil --target m55 --faults 1 --json
 
 step "three-view model (weights/general-3view) in QEMU: SIL on data/demo-3view"
 # The same build with the three-view blob embedded: its view count makes the device pair frames

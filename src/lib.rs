@@ -42,6 +42,7 @@ pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod dsp;
+pub mod fault;
 pub mod kernels;
 pub mod link;
 pub mod model;

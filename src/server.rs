@@ -23,6 +23,7 @@ macro_rules! log {
 }
 
 use crate::config;
+use crate::fault::{Record, ResetCause};
 use crate::link::{
     self, encode, error_text, DecodeError, Decoder, DepthData, ErrorCode, Message, Status,
 };
@@ -57,8 +58,25 @@ pub struct Server<'a> {
     /// Read-side errors of the serial line since start (each lost one or more bytes). Not on
     /// the wire (the status reply's fields are docs/LINK.md's): boards log it.
     pub line_errors: u32,
+    /// Feeds the board's watchdog; called once per pass of the serving loop, so a pass that
+    /// never ends (a hang) lets it expire. No-op by default.
+    pub feed: &'a dyn Fn(),
+    /// Why the device last reset, reported in every hello reply.
+    pub reset: ResetCause,
+    /// The fault record of the last reset, sent with hello replies until a host's hello
+    /// acknowledges it (`ack` = its [`Record::id`]).
+    pub fault: Option<Record>,
+    /// Forgets the board's stored record, once acknowledged. No-op by default.
+    pub clear_fault: &'a dyn Fn(),
+    /// Test builds only: provokes the fault an `inject` message names
+    /// ([`fault::inject`](crate::fault::inject)); returns for a code it does not know.
+    #[cfg(feature = "fault-injection")]
+    pub inject: &'a dyn Fn(u16),
     tx_seq: u32,
 }
+
+/// The default of [`Server::feed`] and [`Server::clear_fault`].
+fn nothing() {}
 
 impl<'a> Server<'a> {
     /// A server with zeroed counters.
@@ -84,6 +102,12 @@ impl<'a> Server<'a> {
             stack_high_water,
             status: Status::default(),
             line_errors: 0,
+            feed: &nothing,
+            reset: ResetCause::PowerOn,
+            fault: None,
+            clear_fault: &nothing,
+            #[cfg(feature = "fault-injection")]
+            inject: &|_| {},
             tx_seq: 0,
         }
     }
@@ -136,10 +160,14 @@ impl<'a> Server<'a> {
         self.status.cached = self.cache.len() as u32;
         let seq = self.next_seq();
         let status = self.status;
+        let record = self.fault.filter(|_| hello).map(|f| f.to_bytes());
         let msg = if hello {
             Message::Hello {
                 seq,
                 status: Some(status),
+                reset: Some(self.reset),
+                record: record.as_ref().map(|r| &r[..]),
+                ack: None,
             }
         } else {
             Message::Status { seq, status }
@@ -258,9 +286,20 @@ impl<'a> Server<'a> {
                 image,
             }) => self.frame(uart, led, seq, roll_deg, attitude, image)?,
             Ok(Message::StatusRequest { .. }) => self.send_status(uart, false)?,
-            Ok(Message::Hello { status: None, .. }) => {
+            #[cfg(feature = "fault-injection")]
+            Ok(Message::Inject { what, .. }) => {
+                (self.inject)(what);
+                self.send_status(uart, false)?;
+            }
+            Ok(Message::Hello {
+                status: None,
+                record: None,
+                ack,
+                ..
+            }) => {
                 // A new session: the decoder accepted the hello whatever its seq; the frames
                 // of the old session are forgotten and the replies' seqs restart at 1.
+                self.acknowledge(ack);
                 self.cache.clear();
                 self.status.pair = None;
                 self.tx_seq = 0;
@@ -274,6 +313,14 @@ impl<'a> Server<'a> {
             Ok(m) => self.send_error(uart, ErrorCode::Unexpected, &m.kind())?,
         }
         Ok(false)
+    }
+
+    /// Forgets the fault record if `ack` names it (a stale or wrong `ack` changes nothing).
+    fn acknowledge(&mut self, ack: Option<u32>) {
+        if ack.is_some() && ack == self.fault.map(|f| f.id()) {
+            self.fault = None;
+            (self.clear_fault)();
+        }
     }
 
     /// Serves until a shutdown message (`Ok`) or a write error (`Err`). Read-side errors
@@ -292,6 +339,8 @@ impl<'a> Server<'a> {
         let mut last_rx = (self.now)();
         let mut buf = [0u8; 64];
         loop {
+            // Each pass is progress: the previous message was handled.
+            (self.feed)();
             let ready = match uart.read_ready() {
                 Ok(ready) => ready,
                 Err(e) => {

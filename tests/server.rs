@@ -6,6 +6,7 @@ use std::cell::Cell;
 use std::convert::Infallible;
 
 use epssn::config;
+use epssn::fault::{Record, ResetCause};
 use epssn::link::{encode, Decoder, ErrorCode, Message, Status};
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
@@ -236,6 +237,7 @@ fn replies(bytes: &[u8]) -> Vec<Reply> {
                 Message::Hello {
                     seq,
                     status: Some(status),
+                    ..
                 } => Reply::Hello {
                     seq,
                     frames: status.frames,
@@ -410,7 +412,7 @@ fn frame(seq: u32, roll_deg: f32, image: &[u8]) -> Message<'_> {
     }
 }
 
-const HELLO: fn(u32) -> Message<'static> = |seq| Message::Hello { seq, status: None };
+const HELLO: fn(u32) -> Message<'static> = |seq| Message::hello(seq);
 
 #[test]
 fn a_restarted_host_is_served_at_once_after_hello() {
@@ -536,6 +538,9 @@ fn a_hello_with_counters_sent_to_the_device_is_unexpected() {
         Message::Hello {
             seq: 1,
             status: Some(Default::default()),
+            reset: None,
+            record: None,
+            ack: None,
         },
         Message::Shutdown { seq: 2 },
     ]);
@@ -721,5 +726,106 @@ fn a_line_error_that_loses_bytes_costs_only_its_message() {
             status(0, 0, 2),
             status(0, 0, 2),
         ]
+    );
+}
+
+/// The hellos the server sends: (seq, reset cause, fault record) each.
+fn hellos(bytes: &[u8]) -> Vec<(u32, Option<ResetCause>, Option<Record>)> {
+    let mut decoder = Decoder::new();
+    let mut out = Vec::new();
+    for &b in bytes {
+        decoder.push(b);
+        while let Some(event) = decoder.poll() {
+            if let Ok(Message::Hello {
+                seq,
+                status: Some(_),
+                reset,
+                record,
+                ..
+            }) = event
+            {
+                let record = record.map(|r| Record::from_bytes(r).expect("a valid record"));
+                out.push((seq, reset, record));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn hello_reports_the_reset_and_its_record_until_a_hello_acknowledges_it() {
+    let blob = blob();
+    let model = Model::from_blob(&blob).unwrap();
+    let mut ws = Box::new(Workspace::new());
+    let mut cache = Box::new(FeatureCache::new());
+    let mut depth = Box::new([U16F16::ZERO; config::DEPTH_LEN]);
+    let mut decoder = Box::new(Decoder::new());
+    let now = || 0;
+    let high_water = || 0;
+    let mut server = Server::new(
+        &model,
+        &mut ws,
+        &mut cache,
+        &mut depth,
+        &now,
+        1,
+        1_000_000,
+        &high_water,
+    );
+    let record = Record::panic(&"index out of bounds", "src/x.rs", 7, 3);
+    let cleared = Cell::new(0);
+    let clear = || cleared.set(cleared.get() + 1);
+    let feeds = Cell::new(0u32);
+    let feed = || feeds.set(feeds.get() + 1);
+    server.reset = ResetCause::Panic;
+    server.fault = Some(record);
+    server.clear_fault = &clear;
+    server.feed = &feed;
+    let ack = |seq, ack| Message::Hello {
+        seq,
+        status: None,
+        reset: None,
+        record: None,
+        ack: Some(ack),
+    };
+    let input = wire(&[
+        Message::hello(0),
+        // A wrong id acknowledges nothing.
+        ack(0, record.id() ^ 1),
+        ack(0, record.id()),
+        Message::hello(0),
+        Message::Shutdown { seq: 1 },
+    ]);
+    let mut serial = MockSerial::new(input);
+    server
+        .serve(&mut serial, &mut MockPin::default(), &mut decoder)
+        .unwrap();
+    let with = (1, Some(ResetCause::Panic), Some(record));
+    // The reply to the acknowledging hello no longer has it; the cause stays for the boot.
+    let without = (1, Some(ResetCause::Panic), None);
+    assert_eq!(hellos(&serial.tx), vec![with, with, without, without]);
+    assert_eq!(cleared.get(), 1);
+    assert_eq!(server.fault, None);
+    // Fed once per pass of the loop: at least once per byte read.
+    assert!(feeds.get() as usize >= serial.rx.len() / 64);
+}
+
+#[test]
+fn a_hello_carrying_a_record_sent_to_the_device_is_unexpected() {
+    let record = Record::new(ResetCause::Watchdog).to_bytes();
+    let input = wire(&[
+        Message::Hello {
+            seq: 1,
+            status: None,
+            reset: None,
+            record: Some(&record),
+            ack: None,
+        },
+        Message::Shutdown { seq: 2 },
+    ]);
+    let (got, _) = serve(&blob(), input);
+    assert_eq!(
+        got,
+        vec![Reply::Error(ErrorCode::Unexpected.code()), status(0, 0, 1)]
     );
 }

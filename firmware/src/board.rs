@@ -26,6 +26,16 @@ const CTRL_TX_EN: u32 = 1 << 0;
 const CTRL_RX_EN: u32 = 1 << 1;
 /// Start of the data SRAM (the RAM region of memory.x).
 const RAM_ORIGIN: usize = 0x2000_0000;
+/// CMSDK APB watchdog (QEMU's mps2-an500 maps `cmsdk-apb-watchdog` here, clocked by the
+/// 25 MHz system clock, its interrupt wired to the NMI).
+const WDOG: usize = 0x4000_8000;
+const WDOG_LOAD: usize = 0x000;
+const WDOG_CTRL: usize = 0x008;
+const WDOG_INTCLR: usize = 0x00C;
+const WDOG_LOCK: usize = 0xC00;
+const WDOG_UNLOCK_KEY: u32 = 0x1ACC_E551;
+const WDOG_CTRL_INTEN: u32 = 1 << 0;
+const WDOG_CTRL_RESEN: u32 = 1 << 1;
 
 fn write_reg(addr: usize, value: u32) {
     // SAFETY: `addr` is one of the fixed, aligned MMIO registers above, present on the
@@ -63,6 +73,50 @@ impl TickCounter {
     /// QEMU instructions per timer tick under `-icount shift=0` at the 25 MHz timer clock.
     pub const INSTRUCTIONS_PER_TICK: u32 = 40;
 }
+
+/// The CMSDK watchdog: an NMI at the first timeout (the firmware records `watchdog` and
+/// resets), a hardware reset at the second (RESEN: should the NMI itself not get to run).
+///
+/// Timeout: a depth map costs at most 48,000,000 instructions (weights/budgets.json), 48 ms of
+/// virtual time under `-icount shift=0` (1 ns per instruction), and the serving loop feeds the
+/// watchdog once per pass, so one pass takes at most one frame's map plus its reply. The first
+/// timeout is 4 times that, 200 ms (5,000,000 ticks at 25 MHz); the reset follows 200 ms later.
+pub struct Watchdog;
+
+impl Watchdog {
+    /// Ticks of the 25 MHz watchdog clock to the first timeout.
+    pub const TIMEOUT_TICKS: u32 = 5_000_000;
+
+    /// Arms the watchdog and locks its registers.
+    pub fn start() -> Self {
+        write_reg(WDOG + WDOG_LOCK, WDOG_UNLOCK_KEY);
+        write_reg(WDOG + WDOG_LOAD, Self::TIMEOUT_TICKS);
+        write_reg(WDOG + WDOG_CTRL, WDOG_CTRL_INTEN | WDOG_CTRL_RESEN);
+        write_reg(WDOG + WDOG_LOCK, 0);
+        Watchdog
+    }
+
+    /// Restarts the count from the timeout (INTCLR reloads the counter).
+    pub fn feed(&self) {
+        write_reg(WDOG + WDOG_LOCK, WDOG_UNLOCK_KEY);
+        write_reg(WDOG + WDOG_INTCLR, 1);
+        write_reg(WDOG + WDOG_LOCK, 0);
+    }
+}
+
+// The watchdog's NMI: the shared fault entry with cause `watchdog` (it takes the stacked PC of
+// the loop that stopped feeding, then resets; `epssn_selftest::reset`).
+core::arch::global_asm!(
+    ".section .text.NonMaskableInt,\"ax\",%progbits",
+    ".global NonMaskableInt",
+    ".type NonMaskableInt,%function",
+    ".thumb_func",
+    "NonMaskableInt:",
+    "    movs r0, #{watchdog}",
+    "    b epssn_fault_entry",
+    ".size NonMaskableInt, . - NonMaskableInt",
+    watchdog = const epssn::fault::ResetCause::Watchdog as u32,
+);
 
 /// LED0 of the board, lit while the co-processor is computing a depth map.
 pub struct BusyLed;

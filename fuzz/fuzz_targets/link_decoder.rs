@@ -1,10 +1,12 @@
 //! The link's streaming decoder on arbitrary bytes, with line-idle events at byte positions the
 //! input chooses: it must never panic or hang, every message it returns must encode back to
 //! the bytes it came from (decode ∘ encode is the identity on what the decoder accepts), and
-//! accepted sequence numbers must increase strictly except at a session's `hello`.
+//! accepted sequence numbers must increase strictly except at a session's `hello`, and a hello's
+//! fault record (its payload) is exactly `fault::RECORD_LEN` bytes, carried through re-encoding.
 #![no_main]
 
-use epssn::link::{encode_to_slice, Decoder, MAX_MESSAGE_LEN};
+use epssn::fault::{Record, RECORD_LEN};
+use epssn::link::{encode_to_slice, Decoder, Message, MAX_MESSAGE_LEN};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
@@ -34,6 +36,16 @@ fuzz_target!(|data: &[u8]| {
                     let re = again.poll().expect("complete").expect("valid");
                     assert_eq!(re.seq(), seq);
                     assert_eq!(re.kind(), msg.kind());
+                    if let Message::Hello { record, .. } = &msg {
+                        if let Some(r) = record {
+                            assert_eq!(r.len(), RECORD_LEN);
+                            // Validation never panics; a valid record re-encodes to its bytes.
+                            if let Some(v) = Record::from_bytes(r) {
+                                assert_eq!(&v.to_bytes()[..], &r[..]);
+                            }
+                        }
+                        assert_eq!(&re, &msg, "a hello round-trips whole (reset, record, ack)");
+                    }
                 }
                 Some(Err(_)) => {}
             }

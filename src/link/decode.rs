@@ -14,6 +14,7 @@ use super::{
     MAX_PAYLOAD_LEN, PREAMBLE_LEN, SYNC,
 };
 use crate::attitude::Attitude;
+use crate::fault::{ResetCause, RECORD_LEN};
 
 /// Why the decoder rejected bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -181,6 +182,13 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.code.is_some(), "code")?;
             expect(0)
         }
+        #[cfg(feature = "fault-injection")]
+        kind::INJECT => {
+            need(h.code.is_some(), "code")?;
+            expect(0)
+        }
+        // A device's hello carries its fault record until the host acknowledges it.
+        kind::HELLO if len as usize == RECORD_LEN => Ok(RECORD_LEN),
         kind::STATUS_REQUEST | kind::SHUTDOWN | kind::HELLO => expect(0),
         _ => Err(DecodeError::UnknownType),
     }
@@ -252,6 +260,9 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
                 Message::Hello {
                     seq,
                     status: h.frames.map(|_| status),
+                    reset: h.reset.and_then(|c| ResetCause::from_code(c.into())),
+                    record: (!payload.is_empty()).then_some(payload),
+                    ack: h.ack,
                 }
             }
         }
@@ -261,6 +272,11 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
             msg: h.msg.unwrap_or(""),
         },
         kind::SHUTDOWN => Message::Shutdown { seq },
+        #[cfg(feature = "fault-injection")]
+        kind::INJECT => Message::Inject {
+            seq,
+            what: h.code.unwrap_or(0),
+        },
         // check_header admitted only known types; a status request is the remaining one.
         _ => Message::StatusRequest { seq },
     }

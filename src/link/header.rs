@@ -84,6 +84,16 @@ pub struct Header<'a> {
     #[serde(default, borrow, skip_serializing_if = "Option::is_none")]
     #[cfg_attr(target_os = "none", serde(skip_deserializing))]
     pub why: Option<&'a str>,
+    /// Hello (device → host): why the device last reset,
+    /// [`ResetCause::code`](crate::fault::ResetCause::code). The device sends it, never parses
+    /// it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub reset: Option<u8>,
+    /// Hello (host → device): the [`id`](crate::fault::Record::id) of the fault record the
+    /// host read; the device forgets that record.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ack: Option<u32>,
     /// Error: [`ErrorCode`] number.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub code: Option<u16>,

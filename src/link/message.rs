@@ -6,6 +6,7 @@ use fixed::types::U16F16;
 
 use crate::attitude::{Attitude, Verdict};
 use crate::config;
+use crate::fault::ResetCause;
 use crate::pairing::PairCheck;
 
 use super::header::Header;
@@ -60,6 +61,16 @@ fn put_pair(h: &mut Header<'_>, pair: &Option<PairCheck>) {
         h.pres = p.residual_deg.is_finite().then_some(p.residual_deg);
         h.why = Some(p.verdict.reason());
     }
+}
+
+/// Writes the counters and the pair check of a status or a device's hello.
+fn put_status(h: &mut Header<'_>, status: &Status) {
+    h.frames = Some(status.frames);
+    h.depths = Some(status.depth_maps);
+    h.errors = Some(status.errors);
+    h.stack = Some(status.stack_high_water);
+    h.cached = Some(status.cached);
+    put_pair(h, &status.pair);
 }
 
 #[cfg_attr(target_os = "none", allow(dead_code))]
@@ -189,21 +200,51 @@ pub enum Message<'a> {
         msg: &'a str,
     },
     /// Either direction: starts a session. Host → device without counters (any `seq`: it
-    /// restarts the sequence); the device answers with one carrying its counters.
+    /// restarts the sequence); the device answers with one carrying its counters, why it last
+    /// reset and, until a hello acknowledges it, its fault record.
     Hello {
         /// Sequence number (accepted whatever the previous one was).
         seq: u32,
         /// The device's counters (device → host only).
         status: Option<Status>,
+        /// Why the device last reset (device → host only; `reset` on the wire).
+        reset: Option<ResetCause>,
+        /// The fault record, [`RECORD_LEN`](crate::fault::RECORD_LEN) bytes for
+        /// [`Record::from_bytes`](crate::fault::Record::from_bytes) (device → host only, the
+        /// payload; present until acknowledged).
+        record: Option<&'a [u8]>,
+        /// The [`id`](crate::fault::Record::id) of the record the host read (host → device
+        /// only, `ack`): the device forgets that record.
+        ack: Option<u32>,
     },
     /// Host → device: stop serving.
     Shutdown {
         /// Sequence number.
         seq: u32,
     },
+    /// Host → device, test builds only: provoke the fault `what`
+    /// ([`fault::inject`](crate::fault::inject); `code` on the wire).
+    #[cfg(feature = "fault-injection")]
+    Inject {
+        /// Sequence number.
+        seq: u32,
+        /// Which fault.
+        what: u16,
+    },
 }
 
 impl Message<'_> {
+    /// A host's hello: a new session, nothing acknowledged.
+    pub fn hello(seq: u32) -> Self {
+        Message::Hello {
+            seq,
+            status: None,
+            reset: None,
+            record: None,
+            ack: None,
+        }
+    }
+
     /// The sequence number.
     pub fn seq(&self) -> u32 {
         match self {
@@ -214,6 +255,8 @@ impl Message<'_> {
             | Message::Error { seq, .. }
             | Message::Hello { seq, .. }
             | Message::Shutdown { seq } => *seq,
+            #[cfg(feature = "fault-injection")]
+            Message::Inject { seq, .. } => *seq,
         }
     }
 
@@ -227,6 +270,8 @@ impl Message<'_> {
             Message::Error { .. } => kind::ERROR,
             Message::Hello { .. } => kind::HELLO,
             Message::Shutdown { .. } => kind::SHUTDOWN,
+            #[cfg(feature = "fault-injection")]
+            Message::Inject { .. } => kind::INJECT,
         }
     }
 
@@ -267,27 +312,40 @@ impl Message<'_> {
                     DepthData::Bytes(b) => Payload::Bytes(b),
                 }
             }
-            Message::Status { status, .. }
-            | Message::Hello {
+            Message::Status { status, .. } => {
+                put_status(&mut h, status);
+                Payload::Bytes(&[])
+            }
+            Message::Hello {
                 status: Some(status),
+                reset,
+                record,
                 ..
             } => {
-                h.frames = Some(status.frames);
-                h.depths = Some(status.depth_maps);
-                h.errors = Some(status.errors);
-                h.stack = Some(status.stack_high_water);
-                h.cached = Some(status.cached);
-                put_pair(&mut h, &status.pair);
-                Payload::Bytes(&[])
+                put_status(&mut h, status);
+                h.reset = reset.map(ResetCause::code);
+                Payload::Bytes(record.unwrap_or(&[]))
             }
             Message::Error { code, msg, .. } => {
                 h.code = Some(*code);
                 h.msg = Some(msg);
                 Payload::Bytes(&[])
             }
-            Message::StatusRequest { .. }
-            | Message::Shutdown { .. }
-            | Message::Hello { status: None, .. } => Payload::Bytes(&[]),
+            Message::Hello {
+                status: None,
+                ack,
+                record,
+                ..
+            } => {
+                h.ack = *ack;
+                Payload::Bytes(record.unwrap_or(&[]))
+            }
+            Message::StatusRequest { .. } | Message::Shutdown { .. } => Payload::Bytes(&[]),
+            #[cfg(feature = "fault-injection")]
+            Message::Inject { what, .. } => {
+                h.code = Some(*what);
+                Payload::Bytes(&[])
+            }
         };
         if !payload.is_empty() {
             h.len = Some(u32::try_from(payload.len()).unwrap_or(u32::MAX));

@@ -81,6 +81,10 @@ pub mod kind {
     pub const ERROR: &str = "error";
     /// Host → device: stop serving (the device answers with a status first).
     pub const SHUTDOWN: &str = "shutdown";
+    /// Host → device, test builds only (feature `fault-injection`): provoke a fault,
+    /// [`fault::inject`](crate::fault::inject) in `code`.
+    #[cfg(feature = "fault-injection")]
+    pub const INJECT: &str = "inject";
     /// Either direction: starts a session; accepted whatever its `seq` (docs/LINK.md).
     pub const HELLO: &str = "hello";
 }
@@ -267,6 +271,7 @@ mod tests {
             .collect();
         let mut srcs = heapless::Vec::new();
         srcs.push(11).unwrap();
+        let record = crate::fault::Record::panic(&"boom", "src/x.rs", 1, 2).to_bytes();
         let msgs = [
             Message::Frame {
                 seq: 1,
@@ -312,9 +317,13 @@ mod tests {
                 msg: "crc 1 != 2",
             },
             Message::Shutdown { seq: 6 },
+            Message::hello(7),
             Message::Hello {
-                seq: 7,
+                seq: 9,
                 status: None,
+                reset: None,
+                record: None,
+                ack: Some(0xDEAD_BEEF),
             },
             Message::Hello {
                 seq: 8,
@@ -326,6 +335,16 @@ mod tests {
                     cached: 5,
                     pair: None,
                 }),
+                reset: Some(crate::fault::ResetCause::PowerOn),
+                record: None,
+                ack: None,
+            },
+            Message::Hello {
+                seq: 10,
+                status: Some(Status::default()),
+                reset: Some(crate::fault::ResetCause::Panic),
+                record: Some(&record[..]),
+                ack: None,
             },
         ];
         let mut d = Decoder::new();
@@ -549,7 +568,7 @@ mod tests {
     }
 
     fn hello(seq: u32) -> Message<'static> {
-        Message::Hello { seq, status: None }
+        Message::hello(seq)
     }
 
     #[test]

@@ -6,7 +6,9 @@ use core::mem::MaybeUninit;
 
 use cortex_m::peripheral::DWT;
 use embassy_stm32::gpio::{Level, Output, Speed};
+use embassy_stm32::peripherals::IWDG1;
 use embassy_stm32::usart::{self, BufferedUart};
+use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, peripherals};
 use epssn_selftest::Stack;
 
@@ -38,7 +40,21 @@ pub struct Board {
     /// blocking read returns `Ok(0)` on an empty ring; the server only reads when
     /// `read_ready`, retries an empty read and counts read errors as line errors.
     pub link: BufferedUart<'static>,
+    /// IWDG1, started (see [`WATCHDOG_US`]); fed by the serving loop.
+    pub watchdog: IndependentWatchdog<'static, IWDG1>,
+    /// RCC_RSR as the reset left it (the flags are cleared for the next reset).
+    pub reset_flags: u32,
 }
+
+/// RCC reset status register (RCC base 0x5802_4400 + 0xD0).
+const RCC_RSR: usize = 0x5802_44D0;
+
+/// IWDG1 timeout, µs. A depth map costs at most 48 M instructions (weights/budgets.json);
+/// at up to 2 cycles each on the 480 MHz core that is 200 ms, and its 8 KiB reply takes 90 ms
+/// at 921,600 baud: one pass of the serving loop stays under 300 ms. One second is three times
+/// that, with the LSI's ±10 % (RM0433: 29.5–34 kHz), and covers each step of the boot self-test
+/// (fed at every line it logs).
+pub const WATCHDOG_US: u32 = 1_000_000;
 
 /// The clock tree, from the 64 MHz HSI (no dependence on the module's crystal or the ST-LINK's
 /// MCO): PLL1 M = 4 (16 MHz reference), N = 60 (VCO 960 MHz, wide range), P = 2 → SYSCLK
@@ -74,7 +90,17 @@ fn rcc_config() -> embassy_stm32::Config {
 
 /// Clocks, caches, the cycle counter, the LED and the link UART.
 pub fn init() -> Board {
+    // SAFETY: RCC_RSR (RM0433 8.7.39), a word register; writing RMVF (bit 16) only clears the
+    // reset flags, so the next reset's are its own. Nothing else touches it.
+    let reset_flags = unsafe {
+        let rsr = RCC_RSR as *mut u32;
+        let flags = core::ptr::read_volatile(rsr);
+        core::ptr::write_volatile(rsr, flags | 1 << 16);
+        flags
+    };
     let p = embassy_stm32::init(rcc_config());
+    let mut watchdog = IndependentWatchdog::new(p.IWDG1, WATCHDOG_US);
+    watchdog.unleash();
     let mut cp = cortex_m::Peripherals::take().expect("core peripherals taken once");
     // Caches for code and constants in flash (weights, warp tables) and the AXI SRAM buffers.
     // Nothing here uses DMA, so the D-cache needs no maintenance; DTCM is never cached.
@@ -104,6 +130,8 @@ pub fn init() -> Board {
     Board {
         busy_led,
         link: uart,
+        watchdog,
+        reset_flags,
     }
 }
 

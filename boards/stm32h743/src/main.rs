@@ -25,7 +25,12 @@ use epssn::link::Decoder;
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
-use panic_probe as _;
+/// Logs the panic, records it in the fault record and resets: never a halt.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    epssn_selftest::reset::panic(info)
+}
 
 /// Scratch of one inference, in DTCM .bss (const-initialised: never built on the stack).
 static mut WORKSPACE: Workspace = Workspace::new();
@@ -46,9 +51,36 @@ fn log(args: core::fmt::Arguments<'_>) {
 
 #[entry]
 fn main() -> ! {
-    let mut board = board::init();
-    let mut log = log;
+    let board = board::init();
+    let fault = epssn_selftest::reset::stored();
+    let cause = epssn::fault::stm32h7_reset_cause(board.reset_flags, fault.as_ref());
+    // A record is only reported with the reset it explains.
+    let fault = fault.filter(|r| r.cause == cause);
+    let board::Board {
+        mut busy_led,
+        mut link,
+        watchdog,
+        reset_flags,
+    } = board;
+    let watchdog = core::cell::RefCell::new(watchdog);
+    // Fed from the serving loop and at each self-test line; `try_borrow_mut` has no panic path
+    // (nothing else borrows it).
+    let feed = || {
+        if let Ok(mut w) = watchdog.try_borrow_mut() {
+            w.pet();
+        }
+    };
+    let mut log = |args: core::fmt::Arguments<'_>| {
+        feed();
+        log(args);
+    };
     epssn_selftest::banner(&mut log);
+    defmt::info!(
+        "reset: {} (RCC_RSR {=u32:#x}); fault record: {}",
+        cause.name(),
+        reset_flags,
+        defmt::Debug2Format(&fault)
+    );
     defmt::info!(
         "board: STM32H743, {=u32} Hz core, I/D-cache on, link on USART3 at {=u32} baud",
         board::CPU_HZ,
@@ -74,15 +106,7 @@ fn main() -> ! {
         units_per_tick: 1,
         unit: "cycles",
     };
-    let failures = epssn_selftest::run(
-        &mut log,
-        &model,
-        &clock,
-        &mut board.busy_led,
-        ws,
-        cache,
-        depth,
-    );
+    let failures = epssn_selftest::run(&mut log, &model, &clock, &mut busy_led, ws, cache, depth);
     defmt::info!(
         "stack high-water mark: {=u32} of {=u32} bytes",
         stack.high_water(),
@@ -92,7 +116,9 @@ fn main() -> ! {
         (0, Ok(model)) => model,
         _ => {
             defmt::error!("self-test: FAIL ({=u32} checks); not serving", failures);
-            board.busy_led.set_high();
+            busy_led.set_high();
+            // Not serving: the watchdog, no longer fed, resets the board and the self-test
+            // runs again.
             loop {
                 cortex_m::asm::wfi();
             }
@@ -112,7 +138,11 @@ fn main() -> ! {
         IDLE_CYCLES,
         &high_water,
     );
-    let r = server.serve(&mut board.link, &mut board.busy_led, decoder);
+    server.feed = &feed;
+    server.reset = cause;
+    server.fault = fault;
+    server.clear_fault = &epssn_selftest::reset::clear;
+    let r = server.serve(&mut link, &mut busy_led, decoder);
     defmt::info!(
         "link shut down ({=u32} line errors): {}; resetting",
         server.line_errors,

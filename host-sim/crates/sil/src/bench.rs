@@ -11,9 +11,12 @@ use epssn::config::LAYERS;
 /// Arguments of `host-sim bench`.
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    /// Firmware ELF (default: build `firmware/` in release).
+    /// Firmware ELF (default: build the target's firmware crate in release).
     #[arg(long)]
     pub firmware: Option<std::path::PathBuf>,
+    /// The core: `m7` (QEMU mps2-an500) or `m55` (QEMU mps3-an547).
+    #[arg(long, value_enum, default_value_t = crate::target::Target::M7)]
+    pub target: crate::target::Target,
 }
 
 /// Instructions per MAC of the ISA limit: one `SMLAD` does two MACs.
@@ -31,9 +34,11 @@ fn parse_line(line: &str) -> Option<(String, u64)> {
 pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
     let elf = match &args.firmware {
         Some(p) => p.clone(),
-        None => crate::sil::build_firmware()?,
+        None => crate::sil::build_firmware_with(args.target, None)?,
     };
-    let o = crate::sil::qemu_m7()
+    let o = args
+        .target
+        .qemu()
         .args([
             "-serial",
             "null",

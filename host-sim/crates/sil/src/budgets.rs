@@ -120,6 +120,17 @@ mod tests {
     }
 
     #[test]
+    fn m55_memory_x_agrees_with_its_budgets() {
+        let t = crate::target::Target::M55;
+        let b = Budgets::load(&t.budgets_path()).unwrap();
+        let memory = t.memory_x_path();
+        let (flash, ram) = memory_x_lengths(&std::fs::read_to_string(&memory).unwrap()).unwrap();
+        let what = format!("{} vs {}", memory.display(), t.budgets_path().display());
+        assert_eq!(flash, b.flash_bytes, "FLASH: {what}");
+        assert_eq!(ram, b.ram_bytes, "RAM: {what}");
+    }
+
+    #[test]
     fn parses_lengths_and_reports_violations() {
         let text = "MEMORY\n{\n  FLASH : ORIGIN = 0x0, LENGTH = 256K\n  RAM   : ORIGIN = 0x20000000, LENGTH = 2M\n}\n";
         assert_eq!(

@@ -1,5 +1,5 @@
-//! The link to the device under test: the firmware booted in QEMU (MPS2-AN500, Cortex-M7,
-//! `-icount shift=0`, UART0 on a Unix socket) or a real board on a serial port, the reader
+//! The link to the device under test: the firmware booted in QEMU (MPS2-AN500 Cortex-M7 or
+//! MPS3-AN547 Cortex-M55, `-icount shift=0`, UART0 on a Unix socket) or a real board on a serial port, the reader
 //! thread that decodes its replies, and the bytes of link messages, valid or not. The SIL's
 //! orchestration (`sil.rs`) and the fault generators (`faults.rs`) both talk through it; it
 //! knows neither.
@@ -7,13 +7,16 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
+use epssn::fault::{Record, ResetCause};
 use epssn::link::{self, Decoder, Header, Message, Payload};
+
+use crate::target::Target;
 
 /// An owned device reply.
 #[derive(Debug, Clone)]
@@ -27,8 +30,9 @@ pub(crate) enum Reply {
         bits: Vec<u32>,
     },
     Status(link::Status),
-    /// The device's hello reply, with its counters.
-    Hello(link::Status),
+    /// The device's hello reply: its counters, why it last reset and its fault record (until
+    /// acknowledged).
+    Hello(link::Status, Option<ResetCause>, Option<Record>),
     Error {
         code: u16,
         msg: String,
@@ -58,8 +62,13 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
         Ok(Message::Status { status, .. }) => Reply::Status(status),
         Ok(Message::Hello {
             status: Some(status),
+            reset,
+            record,
             ..
-        }) => Reply::Hello(status),
+        }) => match record.map(Record::from_bytes) {
+            Some(None) => Reply::Garbled("hello: invalid fault record".into()),
+            r => Reply::Hello(status, reset, r.flatten()),
+        },
         Ok(Message::Error { code, msg, .. }) => Reply::Error {
             code,
             msg: msg.to_string(),
@@ -79,30 +88,15 @@ pub(crate) struct Device {
     timeout: Duration,
 }
 
-/// `qemu-system-arm` on the emulated Cortex-M7 board, no display or monitor; callers add the
-/// serial, semihosting and timing options.
-pub(crate) fn qemu_m7() -> Command {
-    let mut c = Command::new("qemu-system-arm");
-    c.args([
-        "-machine",
-        "mps2-an500",
-        "-cpu",
-        "cortex-m7",
-        "-nographic",
-        "-monitor",
-        "none",
-    ]);
-    c
-}
-
 impl Device {
-    /// Boots `elf` in QEMU with UART0 on a Unix socket, and connects to it.
-    pub(crate) fn boot(elf: &Path, timeout: Duration) -> Result<Self> {
+    /// Boots `elf` in QEMU on `target`'s board with UART0 on a Unix socket, and connects to it.
+    pub(crate) fn boot(elf: &Path, timeout: Duration, target: Target) -> Result<Self> {
         let dir = std::env::temp_dir().join(format!("epssn-sil-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         let sock = dir.join("link.sock");
         let _ = std::fs::remove_file(&sock);
-        let mut qemu = qemu_m7()
+        let mut qemu = target
+            .qemu()
             .args([
                 "-semihosting-config",
                 "enable=on,target=native,arg=serve",
@@ -232,6 +226,17 @@ impl Device {
                 self.timeout,
                 self.console_text()
             ),
+            Err(RecvTimeoutError::Disconnected) => {
+                bail!("the link closed; console:\n{}", self.console_text())
+            }
+        }
+    }
+
+    /// The next reply if one comes within `wait`.
+    pub(crate) fn reply_within(&mut self, wait: Duration) -> Result<Option<Reply>> {
+        match self.replies.recv_timeout(wait) {
+            Ok(r) => Ok(Some(r)),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => {
                 bail!("the link closed; console:\n{}", self.console_text())
             }

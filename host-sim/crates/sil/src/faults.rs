@@ -130,7 +130,7 @@ fn predict(oracle: &mut Decoder, bytes: &[u8]) -> Vec<Expect> {
 fn matches(e: Expect, r: &Reply) -> bool {
     match (e, r) {
         (Expect::Code(c), Reply::Error { code, .. }) => c == *code,
-        (Expect::Status, Reply::Status(_)) | (Expect::Hello, Reply::Hello(_)) => true,
+        (Expect::Status, Reply::Status(_)) | (Expect::Hello, Reply::Hello(..)) => true,
         (Expect::Frame, Reply::Status(_) | Reply::Depth { .. }) => true,
         _ => false,
     }
@@ -169,7 +169,7 @@ impl Campaign<'_> {
 
     fn hello(&mut self, seq: u32) -> Vec<u8> {
         self.seq = seq;
-        msg_bytes(&Message::Hello { seq, status: None })
+        msg_bytes(&Message::hello(seq))
     }
 
     fn below(&mut self, n: usize) -> usize {
@@ -357,6 +357,9 @@ impl Campaign<'_> {
             2 => Message::Hello {
                 seq,
                 status: Some(Status::default()),
+                reset: None,
+                record: None,
+                ack: None,
             },
             _ => Message::Depth {
                 seq,
@@ -630,7 +633,7 @@ fn start(c: &mut Campaign<'_>, hello: &[u8]) -> Result<u32> {
     let mut stack = 0;
     for _ in 0..want.len() {
         match c.device.reply()? {
-            Reply::Hello(s) => stack = s.stack_high_water,
+            Reply::Hello(s, ..) => stack = s.stack_high_water,
             other => bail!("hello: unexpected reply {other:?}"),
         }
     }
@@ -642,7 +645,7 @@ fn short(r: &Reply) -> String {
     match r {
         Reply::Error { code, .. } => code_name(*code),
         Reply::Status(_) => "Status".into(),
-        Reply::Hello(_) => "Hello".into(),
+        Reply::Hello(..) => "Hello".into(),
         Reply::Depth { .. } => "Depth".into(),
         other => format!("{other:?}"),
     }

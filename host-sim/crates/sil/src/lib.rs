@@ -13,5 +13,7 @@ pub mod bench;
 pub mod budgets;
 mod device;
 pub mod faults;
+pub mod resets;
 pub mod serial;
 pub mod sil;
+pub mod target;

@@ -29,10 +29,10 @@ use serde::Serialize;
 use epssn_aris::aris::ArisReader;
 use epssn_aris::polar::frame_to_polar;
 
-pub(crate) use crate::device::qemu_m7;
 use crate::device::{Device, Reply};
 pub use crate::faults::FuzzReport;
 use crate::faults::{campaign, fuzz, FaultReport};
+use crate::target::Target;
 
 /// Arguments of `host-sim sil`.
 #[derive(Args, Debug, Clone)]
@@ -43,9 +43,13 @@ pub struct SilArgs {
     /// Print machine-readable JSON.
     #[arg(long)]
     pub json: bool,
-    /// The firmware ELF (default: build firmware/ in release and use it).
+    /// The firmware ELF (default: build the target's firmware crate in release and use it).
     #[arg(long)]
     pub firmware: Option<PathBuf>,
+    /// The core to run on: `m7` (QEMU mps2-an500, `firmware/`) or `m55` (QEMU mps3-an547,
+    /// `boards/mps3-an547`, budgets `weights/budgets-m55.json`).
+    #[arg(long, value_enum, default_value_t = Target::M7)]
+    pub target: Target,
     /// Stream at most this many frames.
     #[arg(long)]
     pub frames: Option<usize>,
@@ -68,7 +72,7 @@ pub struct SilArgs {
     /// Seconds to wait for any one reply.
     #[arg(long, default_value_t = 120)]
     pub timeout: u64,
-    /// The budgets file (default: `weights/budgets.json`).
+    /// The budgets file (default: the target's, `weights/budgets.json` for the M7).
     #[arg(long)]
     pub budgets: Option<PathBuf>,
     /// Talk to a real board on this serial port (e.g. `/dev/ttyACM0`, the ST-LINK's virtual
@@ -79,6 +83,12 @@ pub struct SilArgs {
     /// The serial port's baud rate (the board's `LINK_BAUD`).
     #[arg(long, default_value_t = 921_600)]
     pub baud: u32,
+    /// Device resets (docs/LINK.md, "Resets"): builds the firmware with its test-only feature
+    /// `reset-faults` and provokes a hang, a panic and a stack overflow this many rounds each
+    /// (seeded order), checking each reset's cause and fault record and the depth maps after
+    /// it bit for bit.
+    #[arg(long, default_value_t = 0)]
+    pub reset_faults: usize,
 }
 
 /// What a soak (`--soak N`) adds to the fault campaign's table.
@@ -115,6 +125,8 @@ pub struct SilReport {
     pub firmware: String,
     /// Where the firmware ran: "qemu" or the serial port.
     pub device: String,
+    /// The core QEMU emulated: "m7" or "m55".
+    pub target: Target,
     /// What the cost figures count: "instructions" (QEMU `-icount`) or "cycles" (a board's
     /// cycle counter, over `--serial`).
     pub cost_unit: String,
@@ -160,6 +172,8 @@ pub struct SilReport {
     pub faults: Option<FaultReport>,
     /// The soak, with `--soak N`.
     pub soak: Option<SoakReport>,
+    /// The provoked resets, with `--reset-faults N`.
+    pub resets: Option<crate::resets::ResetReport>,
     /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
     /// the host library (pairs and feature cache included); true without a campaign.
     pub after_faults_bit_exact: bool,
@@ -187,11 +201,25 @@ fn firmware_blob() -> Result<Vec<u8>> {
 /// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
-    let dir = epssn_spec::load::repo_root().join("firmware");
+    build_firmware_with(Target::M7, None)
+}
+
+/// [`build_firmware`] for `target_core`'s firmware crate (`boards/mps3-an547` for the M55, in
+/// its own `target/`, per spec the same way), with a cargo feature of it if given (a test
+/// build, in a target directory of its own, `<target>/<feature>`, so it never replaces the
+/// shipped build).
+pub fn build_firmware_with(target_core: Target, feature: Option<&str>) -> Result<PathBuf> {
+    let dir = epssn_spec::load::repo_root().join(target_core.crate_dir());
     let spec_file = epssn::config::SPEC_FILE_NAME;
-    let target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
-    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--release", "--quiet", "--target-dir"])
+    let mut target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
+    let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cargo.args(["build", "--release", "--quiet"]);
+    if let Some(f) = feature {
+        target = target.join(f);
+        cargo.args(["--features", f]);
+    }
+    let status = cargo
+        .arg("--target-dir")
         .arg(&target)
         .current_dir(&dir)
         // The firmware is built from the same spec as this host tool (specs live in weights/).
@@ -207,7 +235,7 @@ pub fn build_firmware() -> Result<PathBuf> {
     if !status.success() {
         bail!("firmware build failed ({status})");
     }
-    Ok(target.join("thumbv7em-none-eabihf/release/epssn-firmware"))
+    Ok(target_core.elf_in(&target))
 }
 
 /// Flash and static RAM of the ELF, from its section sizes.
@@ -465,14 +493,24 @@ fn soak(
 /// The firmware ELF (built unless named), its flash and static RAM, and the device running
 /// it: QEMU, or the board on `--serial`.
 fn open_device(args: &SilArgs, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
+    if args.reset_faults > 0 && args.target != Target::M7 {
+        bail!(
+            "--reset-faults needs the Cortex-M7 firmware (firmware/): the {:?} board has no \
+             watchdog or fault record yet",
+            args.target
+        );
+    }
     Ok(match &args.serial {
         None => {
             let elf = match &args.firmware {
                 Some(p) => p.clone(),
-                None => build_firmware()?,
+                None => build_firmware_with(
+                    args.target,
+                    (args.reset_faults > 0).then_some("reset-faults"),
+                )?,
             };
             let sizes = elf_sizes(&elf)?;
-            let device = Device::boot(&elf, timeout)?;
+            let device = Device::boot(&elf, timeout, args.target)?;
             (elf, sizes, device)
         }
         Some(port) => {
@@ -534,6 +572,36 @@ fn faults_and_soak(
             soak: None,
         }
     })
+}
+
+/// `--reset-faults N` on the session's frames (the first `AFTER_FAULTS_FRAMES`), each
+/// stream starting a session's numbering at 1.
+fn provoke_resets(
+    args: &SilArgs,
+    device: &mut Device,
+    frames: &[HostFrame],
+) -> Result<crate::resets::ResetReport> {
+    let again = &frames[..frames.len().min(AFTER_FAULTS_FRAMES)];
+    // Frames the reset loses: those after the last one that completed a view set.
+    let cached_after = |n: usize| {
+        let done = again[..n].iter().rposition(|f| f.expected.is_some());
+        n - done.map_or(0, |i| i + 1)
+    };
+    let mut stream_n = |device: &mut Device, n: usize| {
+        let mut seq = 0;
+        let part = &again[..n.min(again.len())];
+        let s = stream(device, part, &mut seq)?;
+        let expected = part.iter().filter(|f| f.expected.is_some()).count();
+        Ok((s.depth_maps, expected, s.pairs_ok && s.mismatched == 0))
+    };
+    crate::resets::reset_faults(
+        device,
+        args.reset_faults,
+        args.seed,
+        again.len(),
+        &cached_after,
+        &mut stream_n,
+    )
 }
 
 /// The device's final status counters, then a shutdown: whether it was acknowledged and
@@ -598,6 +666,11 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         soak: soak_report,
     } = faults_and_soak(args, &mut device, &frames, &mut seq)?;
     let faults_seconds = faults_start.elapsed().as_secs_f64();
+    let resets = if args.reset_faults > 0 {
+        Some(provoke_resets(args, &mut device, &frames)?)
+    } else {
+        None
+    };
     let (status, shutdown_ok, exited) = close(&mut device, &mut seq)?;
     let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
     let mean = if instructions.is_empty() {
@@ -609,7 +682,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         &args
             .budgets
             .clone()
-            .unwrap_or_else(crate::budgets::default_path),
+            .unwrap_or_else(|| args.target.budgets_path()),
     )?;
     let ram = static_ram + u64::from(status.stack_high_water);
     // The budgets are the QEMU build's (instructions, its flash and RAM): not a board's cycles.
@@ -628,6 +701,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
             .serial
             .as_ref()
             .map_or_else(|| "qemu".to_string(), |p| p.display().to_string()),
+        target: args.target,
         cost_unit: if args.serial.is_some() {
             "cycles"
         } else {
@@ -660,6 +734,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         faults_seconds,
         faults,
         soak: soak_report,
+        resets,
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
@@ -681,7 +756,11 @@ pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
 /// The report as text, for a person.
 fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
     writeln!(out, "recording: {}", r.recording)?;
-    writeln!(out, "firmware: {} (on {})", r.firmware, r.device)?;
+    writeln!(
+        out,
+        "firmware: {} (on {}, {:?})",
+        r.firmware, r.device, r.target
+    )?;
     writeln!(
         out,
         "frames sent: {}, depth maps: {} (host expected {}), bit-exact: {} ({} values differ)",
@@ -770,6 +849,32 @@ fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
             )?;
         }
     }
+    if let Some(x) = &r.resets {
+        writeln!(
+            out,
+            "resets (seed {}, {} rounds, {:.1} s): {} depth maps checked, all as they must be: {}",
+            x.seed, x.rounds, x.seconds, x.depth_maps, x.all_ok
+        )?;
+        for e in &x.resets {
+            writeln!(
+                out,
+                "  {:<15} after {} frames ({} lost, re-sent): reset {} (expected {}), {:.1} s; \
+                 record {:?} fits: {}; acknowledged: {}; {} of {} depth maps after, bit-exact: {}",
+                e.fault,
+                e.frames_before,
+                e.frames_lost,
+                e.cause,
+                e.expected_cause,
+                e.reboot_seconds,
+                e.record,
+                e.record_ok,
+                e.acknowledged,
+                e.depth_maps_after,
+                e.expected_depth_maps_after,
+                e.bit_exact_after
+            )?;
+        }
+    }
     writeln!(out, "alive: {}", r.alive)?;
     writeln!(
         out,
@@ -816,6 +921,9 @@ fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
             );
         }
     }
+    if r.resets.as_ref().is_some_and(|x| !x.all_ok) {
+        bail!("SIL: a provoked reset was not reported, recovered from or bit-exact after");
+    }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
     }
@@ -823,7 +931,7 @@ fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
         let file = args
             .budgets
             .clone()
-            .unwrap_or_else(crate::budgets::default_path);
+            .unwrap_or_else(|| args.target.budgets_path());
         bail!(
             "SIL: over budget ({}): {}",
             file.display(),
