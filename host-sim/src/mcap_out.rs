@@ -13,19 +13,13 @@ use epssn::config;
 use epssn_aris::aris::ArisReader;
 use epssn_aris::polar;
 use epssn_mcap::fan::fan;
-use epssn_mcap::msgs::{
-    Header, Image, PointCloud2, Quaternion, SonarPoint, StringMsg, TfMessage, Time, Transform,
-    TransformStamped, Vector3,
-};
+use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
+use epssn_mcap::sonar::{header, ns, tf};
 use epssn_mcap::Bag;
-use epssn_sim::metrics;
 
 use crate::run::CandidateReport;
 
-/// The TF frame of everything measured in the sonar's own frame (x forward, y left, z up).
-pub const SONAR_FRAME: &str = "sonar";
-/// The TF frame the sonar is placed in (the attitude's level frame; the site's with poses).
-pub const WORLD_FRAME: &str = "world";
+pub use epssn_mcap::sonar::{sonar_points, SONAR_FRAME, WORLD_FRAME};
 
 /// The topics, in one place for the docs and the tests.
 pub mod topic {
@@ -65,67 +59,6 @@ pub struct PairMessages<'a> {
     pub truth: Option<&'a [f32]>,
     /// The reference view's polar image (pings averaged), for the points' intensity.
     pub polar: &'a [u8],
-}
-
-/// A depth map's returns (its own mask, `metrics::prediction_mask`: the points of its PLY),
-/// each with its range and the reference view's echo intensity at that range and azimuth.
-pub fn sonar_points(depth: &[f32], polar: &[u8]) -> Result<Vec<SonarPoint>> {
-    let mask = metrics::prediction_mask(depth);
-    let xyz = metrics::depth_points(depth, &mask)?;
-    let bin = (config::R_MAX_M - config::R_MIN_M) / config::INPUT_RANGE_BINS as f64;
-    // depth_points walks the map row by row as this does, so the i-th set pixel is xyz[i].
-    let returns = (0..depth.len()).filter(|&i| mask[i]);
-    Ok(returns
-        .zip(xyz)
-        .map(|(i, p)| {
-            let range = depth[i];
-            let b = ((f64::from(range) - config::R_MIN_M) / bin) as usize;
-            let column = i % config::DEPTH_COLUMNS;
-            let intensity = polar
-                .get(b.min(config::INPUT_RANGE_BINS - 1) * config::INPUT_COLUMNS + column)
-                .map_or(0.0, |&v| f32::from(v));
-            SonarPoint {
-                xyz: p.map(|v| v as f32),
-                range,
-                intensity,
-                pair: None,
-            }
-        })
-        .collect())
-}
-
-/// A header at FrameTime `time_us`.
-fn header(time_us: u64, frame_id: &str) -> Result<Header> {
-    Ok(Header {
-        stamp: Time::from_ns(ns(time_us)?)?,
-        frame_id: frame_id.into(),
-    })
-}
-
-fn ns(time_us: u64) -> Result<u64> {
-    time_us
-        .checked_mul(1000)
-        .with_context(|| format!("FrameTime {time_us} µs overflows nanoseconds"))
-}
-
-/// world ← sonar at a frame.
-fn tf(time_us: u64, attitude: &Attitude, position_m: [f64; 3]) -> Result<TfMessage> {
-    let [w, x, y, z] = attitude.to_array().map(f64::from);
-    let [tx, ty, tz] = position_m;
-    Ok(TfMessage {
-        transforms: vec![TransformStamped {
-            header: header(time_us, WORLD_FRAME)?,
-            child_frame_id: SONAR_FRAME.into(),
-            transform: Transform {
-                translation: Vector3 {
-                    x: tx,
-                    y: ty,
-                    z: tz,
-                },
-                rotation: Quaternion { x, y, z, w },
-            },
-        }],
-    })
 }
 
 /// What the file holds beyond the recording's frames.

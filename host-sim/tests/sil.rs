@@ -35,9 +35,21 @@ where
 
 #[test]
 fn sil_is_bit_exact_and_firmware_survives_fuzz() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("sil.mcap");
     let r = sil_json([
-        "--frames", "3", "--fuzz", "200", "--seed", "11", "--faults", "1",
+        "--frames",
+        "3",
+        "--fuzz",
+        "200",
+        "--seed",
+        "11",
+        "--faults",
+        "1",
+        "--mcap",
+        bag.to_str().unwrap(),
     ]);
+    device_mcap_holds_the_stream_and_the_maps(&bag, &r);
     // The bundled demo recording's first frames have rolls 0, 7, 0: frame 2 (7°) completes a
     // pair with frame 1 as reference, frame 3 (0°) one with itself as reference and frame 2 as
     // source (the lower roll is always the reference).
@@ -106,6 +118,61 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     assert_eq!(faults["failed"], 0);
     assert_eq!(r["after_faults_bit_exact"], true);
     assert_eq!(r["after_faults_depth_maps"], 2);
+}
+
+/// `sil --mcap`: every frame streamed and every map the device returned, stamped with the ARIS
+/// frame times, the maps' values inside the range window, and the report itself.
+fn device_mcap_holds_the_stream_and_the_maps(path: &std::path::Path, report: &serde_json::Value) {
+    use epssn_sil::mcap_out::topic;
+    let bytes = std::fs::read(path).unwrap();
+    let mut by_topic: std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> = Default::default();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        by_topic
+            .entry(m.channel.topic.clone())
+            .or_default()
+            .push((m.log_time, m.data.to_vec()));
+    }
+    let recording = epssn_sim::dataset::demo_dir().join("recording.aris");
+    let reader = epssn_aris::aris::ArisReader::open(&recording).unwrap();
+    let time_ns = |f: usize| reader.frame(f).unwrap().header.frame_time_us * 1000;
+    let frame_times: Vec<u64> = (0..3).map(time_ns).collect();
+    for t in [topic::POLAR, topic::FAN] {
+        let times: Vec<u64> = by_topic[t].iter().map(|(t, _)| *t).collect();
+        assert_eq!(times, frame_times, "{t}");
+    }
+    let pairs = report["pairs"].as_array().unwrap();
+    for t in [topic::DEPTH, topic::POINTS, topic::REPLY] {
+        assert_eq!(by_topic[t].len(), pairs.len(), "{t}");
+    }
+    for (k, pair) in pairs.iter().enumerate() {
+        let reference = pair[0].as_u64().unwrap() as usize;
+        let (time, data) = &by_topic[topic::DEPTH][k];
+        assert_eq!(
+            *time,
+            time_ns(reference - 1),
+            "map {k} at its reference's time"
+        );
+        // A 32FC1 image ends with its pixels, little-endian f32.
+        let pixels = &data[data.len() - 4 * epssn::config::DEPTH_LEN..];
+        let window = epssn::config::R_MIN_M as f32..=epssn::config::R_MAX_M as f32;
+        assert!(pixels
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .all(|d| window.contains(&d)));
+        // A std_msgs/String is a CDR header, a u32 length and the text with its NUL.
+        let (_, reply) = &by_topic[topic::REPLY][k];
+        let reply: serde_json::Value = serde_json::from_slice(&reply[8..reply.len() - 1]).unwrap();
+        assert_eq!(
+            (&reply["reference"], &reply["sources"], &reply["bit_exact"]),
+            (&pair[0], &pair[1], &serde_json::json!(true))
+        );
+    }
+    let (_, summary) = &by_topic[topic::SUMMARY][0];
+    let summary: serde_json::Value =
+        serde_json::from_slice(&summary[8..summary.len() - 1]).unwrap();
+    assert_eq!(summary["pairs"], report["pairs"]);
+    assert_eq!(summary["mismatched_values"], 0);
 }
 
 #[test]

@@ -5,7 +5,7 @@
 //!
 //! `sil` orchestrates a run; `faults` generates every fault it sends (the campaign, the soak's
 //! blocks, the fuzz run); both talk to the device through `device` (QEMU or a serial port, the
-//! reply reader, message bytes), which knows neither.
+//! reply reader, message bytes), which knows neither; `mcap_out` writes `sil --mcap`.
 
 #![deny(missing_docs)]
 
@@ -13,6 +13,7 @@ pub mod bench;
 pub mod budgets;
 mod device;
 pub mod faults;
+pub mod mcap_out;
 pub mod resets;
 pub mod serial;
 pub mod sil;

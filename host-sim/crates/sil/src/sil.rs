@@ -32,6 +32,7 @@ use epssn_aris::polar::frame_to_polar;
 use crate::device::{Device, Reply};
 pub use crate::faults::FuzzReport;
 use crate::faults::{campaign, fuzz, FaultReport};
+use crate::mcap_out::{DeviceMap, StreamedFrame};
 use crate::target::Target;
 
 /// Arguments of `host-sim sil`.
@@ -89,6 +90,10 @@ pub struct SilArgs {
     /// it bit for bit.
     #[arg(long, default_value_t = 0)]
     pub reset_faults: usize,
+    /// Also write what the device returned as an MCAP file of ROS 2 messages (docs/MCAP.md):
+    /// every frame streamed and every depth map the device sent back, with its points.
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
 }
 
 /// What a soak (`--soak N`) adds to the fault campaign's table.
@@ -262,6 +267,8 @@ pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
 
 /// One frame prepared on the host: the link message's content and the expected reply.
 struct HostFrame {
+    /// ARIS FrameTime, µs.
+    time_us: u64,
     roll_deg: f32,
     /// The header's attitude (docs/POSE.md), sent with the frame.
     attitude: Option<epssn::attitude::Attitude>,
@@ -342,6 +349,7 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
             None => None,
         };
         out.push(HostFrame {
+            time_us: h.frame_time_us,
             roll_deg: roll,
             attitude,
             rejected,
@@ -372,6 +380,8 @@ struct Streamed {
     rejected: Vec<(u32, u32, String)>,
     /// Every device rejection equals the host's (pair and reason), and there are no others.
     rejections_agree: bool,
+    /// The depth maps as the device sent them.
+    maps: Vec<DeviceMap>,
 }
 
 /// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
@@ -384,6 +394,7 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
     let mut pairs = Vec::new();
     let mut rejected = Vec::new();
     let mut rejections_agree = true;
+    let mut maps = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         *seq += 1;
         device.send_msg(&Message::Frame {
@@ -404,9 +415,18 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
             ) => {
                 depth_maps += 1;
                 instructions.push(instr);
-                pairs_ok &= reference == *eref && sources == *esrc;
-                mismatched += bits.iter().zip(ebits).filter(|(a, b)| a != b).count()
+                let same_pair = reference == *eref && sources == *esrc;
+                pairs_ok &= same_pair;
+                let differ = bits.iter().zip(ebits).filter(|(a, b)| a != b).count()
                     + bits.len().abs_diff(ebits.len());
+                mismatched += differ;
+                maps.push(DeviceMap {
+                    reference,
+                    sources: sources.clone(),
+                    instructions: instr,
+                    bit_exact: same_pair && differ == 0,
+                    bits,
+                });
                 pairs.push((reference, sources));
             }
             (Reply::Status(st), None) => {
@@ -441,6 +461,7 @@ fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<St
         pairs,
         rejected,
         rejections_agree,
+        maps,
     })
 }
 
@@ -647,6 +668,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         pairs,
         rejected,
         rejections_agree,
+        maps,
     } = stream(&mut device, &frames, &mut seq)?;
     let fuzz_report = if args.fuzz > 0 {
         Some(fuzz(
@@ -694,7 +716,7 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     let fuzz_alive = fuzz_report
         .as_ref()
         .is_none_or(|f| f.status_replies == f.status_requests && f.unanswered == 0);
-    Ok(SilReport {
+    let report = SilReport {
         recording: recording.display().to_string(),
         firmware: elf.display().to_string(),
         device: args
@@ -738,7 +760,20 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
-    })
+    };
+    if let Some(path) = &args.mcap {
+        let streamed: Vec<StreamedFrame> = frames
+            .iter()
+            .map(|f| StreamedFrame {
+                time_us: f.time_us,
+                attitude: f.attitude,
+                image: &f.image,
+            })
+            .collect();
+        crate::mcap_out::write(path, &streamed, &maps, &report)
+            .with_context(|| format!("sil --mcap {}", path.display()))?;
+    }
+    Ok(report)
 }
 
 /// `host-sim sil`: prints the report; fails unless bit-exact, with the host's pair
