@@ -155,7 +155,10 @@ fn device_mcap_holds_the_stream_and_the_maps(path: &std::path::Path, report: &se
         );
         // A 32FC1 image ends with its pixels, little-endian f32.
         let pixels = &data[data.len() - 4 * epssn::config::DEPTH_LEN..];
-        let window = epssn::config::R_MIN_M as f32..=epssn::config::R_MAX_M as f32;
+        // The device's depths are U16F16: the window's ends to within one step of 2^-16 m.
+        let step = 1.0 / 65536.0;
+        let window =
+            (epssn::config::R_MIN_M - step) as f32..=(epssn::config::R_MAX_M + step) as f32;
         assert!(pixels
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
