@@ -12,9 +12,8 @@ use epssn::attitude::Attitude;
 use epssn::config;
 use epssn_aris::aris::ArisReader;
 use epssn_aris::polar;
-use epssn_mcap::fan::fan;
 use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
-use epssn_mcap::sonar::{header, ns, tf};
+use epssn_mcap::sonar::{header, ns, write_sonar_frame};
 use epssn_mcap::Bag;
 
 use crate::run::CandidateReport;
@@ -23,12 +22,7 @@ pub use epssn_mcap::sonar::{sonar_points, SONAR_FRAME, WORLD_FRAME};
 
 /// The topics, in one place for the docs and the tests.
 pub mod topic {
-    /// Polar image (range bins × beam columns), mono8, every frame.
-    pub const POLAR: &str = "/sonar/polar";
-    /// The polar image as the Cartesian fan seen from above, mono8, every frame.
-    pub const FAN: &str = "/sonar/fan";
-    /// world ← sonar per frame with attitude.
-    pub const TF: &str = "/tf";
+    pub use epssn_mcap::sonar::{FAN_TOPIC as FAN, POLAR_TOPIC as POLAR, TF_TOPIC as TF};
     /// The pose gate's verdict on each candidate pair, JSON.
     pub const PAIR_CHECK: &str = "/pairing/check";
     /// Depth maps, 32FC1 metres, elevation rows × azimuth columns.
@@ -115,26 +109,11 @@ fn write_frame(
     let t = frame.header.frame_time_us;
     let time = ns(t)?;
     let polar = polar::frame_to_polar(frame)?;
-    let fan = fan(&polar)?;
-    bag.write(
-        topic::FAN,
-        time,
-        &Image::mono8(header(t, SONAR_FRAME)?, fan.width, fan.height, fan.pixels)?,
-    )?;
-    bag.write(
-        topic::POLAR,
-        time,
-        &Image::mono8(
-            header(t, SONAR_FRAME)?,
-            config::INPUT_COLUMNS,
-            config::INPUT_RANGE_BINS,
-            polar,
-        )?,
-    )?;
-    if let Some(a) = run.attitudes.get(f).copied().flatten() {
+    let placed = run.attitudes.get(f).copied().flatten().map(|a| {
         let position = run.positions.get(&f).copied().unwrap_or([0.0; 3]);
-        bag.write(topic::TF, time, &tf(t, &a, position)?)?;
-    }
+        (a, position)
+    });
+    write_sonar_frame(bag, t, &polar, placed.as_ref().map(|(a, p)| (a, *p)))?;
     for c in run
         .candidates
         .iter()

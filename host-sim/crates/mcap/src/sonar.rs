@@ -6,14 +6,59 @@ use epssn::attitude::Attitude;
 use epssn::config;
 use epssn_sim::metrics;
 
+use crate::fan::fan;
 use crate::msgs::{
-    Header, Quaternion, SonarPoint, TfMessage, Time, Transform, TransformStamped, Vector3,
+    Header, Image, Quaternion, SonarPoint, TfMessage, Time, Transform, TransformStamped, Vector3,
 };
+use crate::Bag;
 
 /// The TF frame of everything measured in the sonar's own frame (x forward, y left, z up).
 pub const SONAR_FRAME: &str = "sonar";
 /// The TF frame the sonar is placed in (the attitude's level frame; the site's with poses).
 pub const WORLD_FRAME: &str = "world";
+
+/// Polar image (range bins × beam columns), mono8, every frame.
+pub const POLAR_TOPIC: &str = "/sonar/polar";
+/// The polar image as the Cartesian fan seen from above, mono8, every frame.
+pub const FAN_TOPIC: &str = "/sonar/fan";
+/// world ← sonar per frame with attitude.
+pub const TF_TOPIC: &str = "/tf";
+
+/// One sonar frame's messages at FrameTime `time_us`: its polar image, the fan drawn from it
+/// and, when the frame is placed (its attitude and position), world ← sonar.
+pub fn write_sonar_frame(
+    bag: &mut Bag,
+    time_us: u64,
+    polar: &[u8],
+    placed: Option<(&Attitude, [f64; 3])>,
+) -> Result<()> {
+    let time = ns(time_us)?;
+    let fan = fan(polar)?;
+    bag.write(
+        FAN_TOPIC,
+        time,
+        &Image::mono8(
+            header(time_us, SONAR_FRAME)?,
+            fan.width,
+            fan.height,
+            fan.pixels,
+        )?,
+    )?;
+    bag.write(
+        POLAR_TOPIC,
+        time,
+        &Image::mono8(
+            header(time_us, SONAR_FRAME)?,
+            config::INPUT_COLUMNS,
+            config::INPUT_RANGE_BINS,
+            polar.to_vec(),
+        )?,
+    )?;
+    if let Some((attitude, position)) = placed {
+        bag.write(TF_TOPIC, time, &tf(time_us, attitude, position)?)?;
+    }
+    Ok(())
+}
 
 /// An ARIS FrameTime (µs) in nanoseconds, refused when it overflows.
 pub fn ns(time_us: u64) -> Result<u64> {

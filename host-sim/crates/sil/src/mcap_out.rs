@@ -7,21 +7,16 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use epssn::config;
-use epssn_mcap::fan::fan;
 use epssn_mcap::msgs::{Image, PointCloud2, StringMsg};
-use epssn_mcap::sonar::{header, ns, sonar_points, tf, SONAR_FRAME};
+use epssn_mcap::sonar::{header, ns, sonar_points, write_sonar_frame, SONAR_FRAME};
 use epssn_mcap::Bag;
 use fixed::types::U16F16;
 use serde::Serialize;
 
 /// The topics, in one place for the docs and the tests.
 pub mod topic {
-    /// The polar image sent to the device (range bins × beam columns), mono8, every frame.
-    pub const POLAR: &str = "/sonar/polar";
-    /// The same image as the Cartesian fan seen from above, mono8, every frame.
-    pub const FAN: &str = "/sonar/fan";
-    /// world ← sonar per frame with attitude.
-    pub const TF: &str = "/tf";
+    /// The image sent to the device (polar, mono8), its fan and world ← sonar, every frame.
+    pub use epssn_mcap::sonar::{FAN_TOPIC as FAN, POLAR_TOPIC as POLAR, TF_TOPIC as TF};
     /// Each depth map the device returned, 32FC1 metres, elevation rows × azimuth columns.
     pub const DEPTH: &str = "/device/depth";
     /// Its returns (the map's own mask), sonar frame.
@@ -85,27 +80,8 @@ pub fn write(
 }
 
 fn write_frame(bag: &mut Bag, f: &StreamedFrame) -> Result<()> {
-    let (t, time) = (f.time_us, ns(f.time_us)?);
-    let fan = fan(f.image)?;
-    bag.write(
-        topic::FAN,
-        time,
-        &Image::mono8(header(t, SONAR_FRAME)?, fan.width, fan.height, fan.pixels)?,
-    )?;
-    bag.write(
-        topic::POLAR,
-        time,
-        &Image::mono8(
-            header(t, SONAR_FRAME)?,
-            config::INPUT_COLUMNS,
-            config::INPUT_RANGE_BINS,
-            f.image.to_vec(),
-        )?,
-    )?;
-    if let Some(a) = f.attitude {
-        bag.write(topic::TF, time, &tf(t, &a, [0.0; 3])?)?;
-    }
-    Ok(())
+    let placed = f.attitude.as_ref().map(|a| (a, [0.0; 3]));
+    write_sonar_frame(bag, f.time_us, f.image, placed)
 }
 
 fn write_map(bag: &mut Bag, reference: &StreamedFrame, m: &DeviceMap) -> Result<()> {
