@@ -7,7 +7,6 @@
 
 use core::ptr::{read_volatile, write_volatile};
 
-use embedded_hal::digital::{ErrorType, OutputPin};
 use epssn_selftest::Stack;
 
 /// SSE-300 system counter, control frame (Secure only): CNTCR, CNTCV, CNTSCR.
@@ -24,14 +23,6 @@ const NS_PER_MAINCLK_8_24: u32 = 0x1F40_0000;
 const FPGAIO_LED: usize = 0x4930_2000;
 /// CMSDK APB UART 0 (QEMU connects it to the first `-serial`).
 const UART0: usize = 0x4930_3000;
-const UART_DATA: usize = 0x0;
-const UART_STATE: usize = 0x4;
-const UART_CTRL: usize = 0x8;
-const UART_BAUDDIV: usize = 0x10;
-const STATE_TX_FULL: u32 = 1 << 0;
-const STATE_RX_FULL: u32 = 1 << 1;
-const CTRL_TX_EN: u32 = 1 << 0;
-const CTRL_RX_EN: u32 = 1 << 1;
 /// Start of the DTCM (the RAM region of memory.x).
 const RAM_ORIGIN: usize = 0x2000_0000;
 
@@ -76,110 +67,28 @@ impl TickCounter {
 }
 
 /// LED0 of the board, lit while the co-processor is computing a depth map.
-pub struct BusyLed;
+pub type BusyLed = epssn_cmsdk::FpgaLed<FPGAIO_LED>;
 
-impl ErrorType for BusyLed {
-    type Error = core::convert::Infallible;
+/// The busy LED.
+pub fn busy_led() -> BusyLed {
+    // SAFETY: FPGAIO_LED is this board's FPGA IO LED register; only this firmware drives it.
+    unsafe { BusyLed::new() }
 }
 
-impl OutputPin for BusyLed {
-    fn set_low(&mut self) -> Result<(), Self::Error> {
-        write_reg(FPGAIO_LED, read_reg(FPGAIO_LED) & !1);
-        Ok(())
-    }
+/// UART0 of the board (CMSDK APB UART; QEMU connects it to the first `-serial`).
+pub type Uart0 = epssn_cmsdk::Uart<UART0>;
 
-    fn set_high(&mut self) -> Result<(), Self::Error> {
-        write_reg(FPGAIO_LED, read_reg(FPGAIO_LED) | 1);
-        Ok(())
-    }
+/// UART0, enabled.
+pub fn uart0() -> Uart0 {
+    // SAFETY: UART0 is this board's CMSDK APB UART 0; only the serving loop drives it.
+    unsafe { Uart0::new() }
 }
 
-/// UART0 of the board (CMSDK APB UART), polled: one byte in each direction at a time.
-pub struct Uart0;
-
-impl Uart0 {
-    /// Enables transmitter and receiver. The baud divisor is the smallest the CMSDK UART
-    /// accepts (16); QEMU does not model the bit rate.
-    pub fn new() -> Self {
-        write_reg(UART0 + UART_BAUDDIV, 16);
-        write_reg(UART0 + UART_CTRL, CTRL_TX_EN | CTRL_RX_EN);
-        Uart0
-    }
-
-    fn rx_full() -> bool {
-        read_reg(UART0 + UART_STATE) & STATE_RX_FULL != 0
-    }
-}
-
-impl embedded_io::ErrorType for Uart0 {
-    type Error = core::convert::Infallible;
-}
-
-impl embedded_io::Read for Uart0 {
-    /// Blocks until a byte arrives, then takes what is already there.
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        if buf.is_empty() {
-            return Ok(0);
-        }
-        while !Self::rx_full() {}
-        let mut n = 0;
-        for slot in buf.iter_mut() {
-            if !Self::rx_full() {
-                break;
-            }
-            *slot = read_reg(UART0 + UART_DATA) as u8;
-            n += 1;
-        }
-        Ok(n)
-    }
-}
-
-impl embedded_io::ReadReady for Uart0 {
-    fn read_ready(&mut self) -> Result<bool, Self::Error> {
-        Ok(Self::rx_full())
-    }
-}
-
-impl embedded_io::Write for Uart0 {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        for &b in buf {
-            while read_reg(UART0 + UART_STATE) & STATE_TX_FULL != 0 {}
-            write_reg(UART0 + UART_DATA, u32::from(b));
-        }
-        Ok(buf.len())
-    }
-
-    fn flush(&mut self) -> Result<(), Self::Error> {
-        while read_reg(UART0 + UART_STATE) & STATE_TX_FULL != 0 {}
-        Ok(())
-    }
-}
+pub use epssn_cmsdk::command_line_has;
 
 /// The stack, for its paint and high-water mark (the implementation every board shares).
 pub fn stack() -> Stack {
     // SAFETY: RAM_ORIGIN is the origin of memory.x's RAM region, which cortex-m-rt (through
     // flip-link) puts this image's stack in.
     unsafe { Stack::new(RAM_ORIGIN) }
-}
-
-/// True when the semihosting command line (QEMU `-semihosting-config ...,arg=...`) has the
-/// word `word`.
-pub fn command_line_has(word: &str) -> bool {
-    let mut buf = [0u8; 128];
-    let mut block = [buf.as_mut_ptr() as usize, buf.len()];
-    // SAFETY: SYS_GET_CMDLINE writes at most `buf.len()` bytes into `buf` and the length
-    // into `block[1]`; both outlive the call.
-    let r = unsafe {
-        cortex_m_semihosting::syscall1(
-            cortex_m_semihosting::nr::GET_CMDLINE,
-            block.as_mut_ptr() as usize,
-        )
-    };
-    if r != 0 {
-        return false;
-    }
-    let n = block[1].min(buf.len());
-    core::str::from_utf8(&buf[..n])
-        .map(|s| s.split_ascii_whitespace().any(|w| w == word))
-        .unwrap_or(false)
 }

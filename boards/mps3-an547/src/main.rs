@@ -24,7 +24,7 @@ use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
 use static_cell::ConstStaticCell;
 
-use board::{BusyLed, TickCounter, Uart0};
+use board::TickCounter;
 
 /// Scratch of one inference, in .bss (const-initialised: never built on the stack).
 static WORKSPACE: ConstStaticCell<Workspace> = ConstStaticCell::new(Workspace::new());
@@ -52,6 +52,7 @@ fn main() -> ! {
     let stack = board::stack();
     stack.paint();
     let clock = TickCounter::start();
+    let mut led = board::busy_led();
     let ws = WORKSPACE.take();
     let cache = CACHE.take();
     let depth = DEPTH.take();
@@ -68,7 +69,7 @@ fn main() -> ! {
         &mut log,
         &model,
         &self_test_clock,
-        &mut BusyLed,
+        &mut led,
         ws,
         cache,
         depth,
@@ -95,8 +96,8 @@ fn main() -> ! {
                 100_000_000,
                 &high_water,
             );
-            let mut uart = Uart0::new();
-            let r = server.serve(&mut uart, &mut BusyLed, DECODER.take());
+            let mut uart = board::uart0();
+            let r = server.serve(&mut uart, &mut led, DECODER.take());
             hprintln!("link shut down: {:?}", r);
         }
         debug::exit(debug::EXIT_SUCCESS);
