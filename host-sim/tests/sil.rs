@@ -121,7 +121,7 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
 }
 
 /// `sil --mcap`: every frame streamed and every map the device returned, stamped with the ARIS
-/// frame times, the maps' values inside the range window, and the report itself.
+/// frame times, the maps' values inside the reach of the end bins, and the report itself.
 fn device_mcap_holds_the_stream_and_the_maps(path: &std::path::Path, report: &serde_json::Value) {
     use epssn_sil::mcap_out::topic;
     let bytes = std::fs::read(path).unwrap();
@@ -155,14 +155,25 @@ fn device_mcap_holds_the_stream_and_the_maps(path: &std::path::Path, report: &se
         );
         // A 32FC1 image ends with its pixels, little-endian f32.
         let pixels = &data[data.len() - 4 * epssn::config::DEPTH_LEN..];
-        // The device's depths are U16F16: the window's ends to within one step of 2^-16 m.
-        let step = 1.0 / 65536.0;
-        let window =
-            (epssn::config::R_MIN_M - step) as f32..=(epssn::config::R_MAX_M + step) as f32;
-        assert!(pixels
+        // The end bins reach END_BIN_OFFSET steps past the window, and the depths are U16F16
+        // (to one 2^-16 m step).
+        use epssn::config::{DEPTH_RANGE_BINS, END_BIN_OFFSET, R_MAX_M, R_MIN_M};
+        let bin = (R_MAX_M - R_MIN_M) / (DEPTH_RANGE_BINS - 1) as f64;
+        let reach = f64::from(END_BIN_OFFSET) * bin + 1.0 / 65536.0;
+        let window = (R_MIN_M - reach) as f32..=(R_MAX_M + reach) as f32;
+        let depths: Vec<f32> = pixels
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .all(|d| window.contains(&d)));
+            .collect();
+        let outside: Vec<f32> = depths
+            .iter()
+            .copied()
+            .filter(|d| !window.contains(d))
+            .collect();
+        assert!(
+            outside.is_empty(),
+            "map {k}: {outside:?} outside {window:?}"
+        );
         // A std_msgs/String is a CDR header, a u32 length and the text with its NUL.
         let (_, reply) = &by_topic[topic::REPLY][k];
         let reply: serde_json::Value = serde_json::from_slice(&reply[8..reply.len() - 1]).unwrap();
