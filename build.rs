@@ -9,6 +9,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 
 fn main() {
+    check_mve_target();
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let spec_path = build_spec_path(&root);
     println!("cargo:rerun-if-changed={}", spec_path.display());
@@ -434,4 +435,23 @@ fn layer_const(l: &spec::LayerSpec, input: &[usize], out: &[usize]) -> String {
         name = l.name.as_str(),
         upper = l.name.to_uppercase(),
     )
+}
+
+/// The `mve` feature's assembly needs a core with Helium; rustc does not report ARM target
+/// features to `cfg`, so the build checks the flags it compiles with and names the fix.
+fn check_mve_target() {
+    if std::env::var_os("CARGO_FEATURE_MVE").is_none()
+        || std::env::var("CARGO_CFG_TARGET_ARCH").as_deref() != Ok("arm")
+    {
+        return;
+    }
+    let flags = std::env::var("CARGO_ENCODED_RUSTFLAGS").unwrap_or_default();
+    let helium = ["cortex-m55", "cortex-m85", "+mve"]
+        .iter()
+        .any(|f| flags.contains(f));
+    assert!(
+        helium,
+        "the `mve` feature needs a Helium core: build with `-C target-cpu=cortex-m55` (or \
+         cortex-m85, or `-C target-feature=+mve`) for thumbv8m.main-none-eabihf"
+    );
 }

@@ -129,6 +129,8 @@ pub fn pack(a: i16, b: i16) -> u32 {
 /// exactly what Thumb-2 leaves to inline assembly), which costs about 2 instructions per
 /// MAC instead of 1.
 #[inline(always)]
+// With Helium the function is `mve::dot2x2`; the loops below stay for the other builds.
+#[cfg_attr(all(feature = "mve", target_arch = "arm"), allow(unreachable_code))]
 pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i32; 4] {
     let (Some(xe), Some(we)) = (step.checked_add(n), n.checked_mul(2)) else {
         return acc;
@@ -136,7 +138,9 @@ pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i3
     if x.len() < xe || x.len() < n || w.len() < we {
         return acc;
     }
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    return crate::mve::dot2x2(x, step, w, n, acc);
+    #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if n % 2 == 0 {
         if n == 0 {
             return acc;
@@ -227,7 +231,8 @@ pub fn dot2x2_row(
     if !fits {
         return false;
     }
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    // With Helium the pair loop below calls its `dot2x2`.
+    #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if n % 2 == 0 && n > 0 {
         let pairs = positions / 2;
         if pairs > 0 {
@@ -981,6 +986,14 @@ pub fn pack_rows(dst: &mut [u32], stride: usize, a: &[i8], b: &[i8], oa: i16, ob
             // it into even and odd bytes as i16 pairs, SADD16 adds the offsets, PKHBT /
             // PKHTB pair the rows (5.5 instructions per entry instead of 9).
             let quads = n / 4;
+            #[cfg(feature = "mve")]
+            if quads > 0 {
+                crate::mve::pack_row_quads(dst, stride, (a, b), quads, (oa, ob));
+                dp = dp.wrapping_add(4 * quads * stride);
+                ap = ap.wrapping_add(4 * quads);
+                bp = bp.wrapping_add(4 * quads);
+            }
+            #[cfg(not(feature = "mve"))]
             if quads > 0 {
                 let pair = |o: i16| (o as u16 as u32) | ((o as u16 as u32) << 16);
                 // SAFETY: reads a[..4·quads] and b[..4·quads] (unaligned word loads, which

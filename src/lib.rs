@@ -26,7 +26,7 @@
 //! ```
 
 #![no_std]
-// The only unsafe code is the optional `dsp` module's inline assembly.
+// The only unsafe code is the inline assembly of the optional `dsp` and `mve` modules.
 #![cfg_attr(not(feature = "dsp"), forbid(unsafe_code))]
 #![cfg_attr(feature = "dsp", deny(unsafe_code))]
 #![deny(missing_docs)]
@@ -42,6 +42,8 @@ pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod dsp;
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+pub mod mve;
 pub mod fault;
 pub mod kernels;
 pub mod link;

@@ -1,0 +1,132 @@
+//! Helium (M-profile Vector Extension, MVE) inner loops for the Cortex-M55/M85, behind the
+//! `mve` feature; the same bits as the portable and `dsp` loops of [`crate::dsp`], which
+//! call these in their place.
+//!
+//! One 128-bit instruction handles four words: `VMLAVA.S16` adds eight i16 products to a
+//! general-purpose register (four `SMLAD`s), `VLD20`/`VLD21` split the line engine's
+//! channel-interleaved weight words into one vector per channel, a scatter store
+//! (`VSTRW.32 … [Rn, Qm, UXTW #2]`) writes four line-buffer columns at once, and the loops
+//! are the low-overhead `DLS`/`LE` loops (one loop instruction per iteration, no compare).
+//!
+//! The module only builds for an ARM target with MVE: the build script refuses the feature
+//! unless the compiler targets a Cortex-M55/M85 (or `+mve`). `VMLAVA` needs its accumulators
+//! in even registers (r0, r2, r4, r8 here), hence the explicit register operands; the vector
+//! registers are declared clobbered through their `d` halves (q_n = d_2n:d_2n+1).
+//!
+//! The wrapping of the accumulators is the same as `SMLAD`'s and the Rust loops': sums
+//! modulo 2^32 (the kernels' accumulator bounds exclude overflow anyway).
+
+/// [`crate::dsp::dot2x2`] with Helium: the same result for the same arguments (two output
+/// channels × two positions over `n` words of i16 pairs, channel words interleaved in `w`).
+/// Four words per iteration (32 MACs in 9 instructions); a last pair of words (`n ≡ 2 mod 4`)
+/// or a last word (odd `n`) goes through `SMLAD`. Slices too short for `n` and `step` give
+/// `acc` unchanged.
+#[inline(always)]
+pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i32; 4] {
+    let (Some(xe), Some(we)) = (step.checked_add(n), n.checked_mul(2)) else {
+        return acc;
+    };
+    if x.len() < xe || x.len() < n || w.len() < we {
+        return acc;
+    }
+    let quads = n / 4;
+    let [mut a00, mut a01, mut a10, mut a11] = acc;
+    if quads > 0 {
+        // SAFETY: the loop reads x[..4·quads], x[step..step + 4·quads] and w[..8·quads]
+        // (4·quads ≤ n; in bounds, checked above); quads ≥ 1, so `DLS`/`LE` run it exactly
+        // quads times. Vector loads of words need only word alignment, which &[u32] has.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::arch::asm!(
+                "dls   lr, {quads}",
+                "2:",
+                "vldrw.u32    q0, [{x0}], #16",
+                "vldrw.u32    q1, [{x1}], #16",
+                "vld20.32     {{q2, q3}}, [{w}]",
+                "vld21.32     {{q2, q3}}, [{w}]!",
+                "vmlava.s16   r0, q0, q2",
+                "vmlava.s16   r2, q1, q2",
+                "vmlava.s16   r4, q0, q3",
+                "vmlava.s16   r8, q1, q3",
+                "le    lr, 2b",
+                quads = in(reg) quads,
+                x0 = inout(reg) x.as_ptr() => _,
+                x1 = inout(reg) x.as_ptr().add(step) => _,
+                w = inout(reg) w.as_ptr() => _,
+                inout("r0") a00,
+                inout("r2") a01,
+                inout("r4") a10,
+                inout("r8") a11,
+                out("lr") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                options(nostack, readonly),
+            );
+        }
+    }
+    for k in 4 * quads..n {
+        let (x0, x1) = (x[k], x[step + k]);
+        let (w0, w1) = (w[2 * k], w[2 * k + 1]);
+        a00 = crate::dsp::smlad(x0, w0, a00);
+        a01 = crate::dsp::smlad(x1, w0, a01);
+        a10 = crate::dsp::smlad(x0, w1, a10);
+        a11 = crate::dsp::smlad(x1, w1, a11);
+    }
+    [a00, a01, a10, a11]
+}
+
+/// The four-entry blocks of [`crate::dsp::pack_rows`]: `dst[j · stride] = pack(a[j] + oa,
+/// b[j] + ob)` for `j < 4 · quads`, 8 instructions per block (the `dsp` loop takes 22). The
+/// caller has checked that `dst` holds index `(4 · quads − 1) · stride`, that `a` and `b`
+/// hold `4 · quads` entries and that `stride ≤ usize::MAX / 16`; anything else does nothing.
+#[inline(always)]
+pub fn pack_row_quads(
+    dst: &mut [u32],
+    stride: usize,
+    (a, b): (&[i8], &[i8]),
+    quads: usize,
+    (oa, ob): (i16, i16),
+) {
+    let n = quads.saturating_mul(4);
+    let fits = n
+        .checked_sub(1)
+        .and_then(|m| m.checked_mul(stride))
+        .is_some_and(|last| last < dst.len());
+    if !fits || a.len() < n || b.len() < n || stride > usize::MAX / 16 {
+        return;
+    }
+    // Scatter offsets in words: columns j, j + 1, j + 2, j + 3 of one block.
+    let offsets = [0, stride as u32, 2 * stride as u32, 3 * stride as u32];
+    // SAFETY: block i reads a[4i..4i + 4] and b[4i..4i + 4] (byte loads widened to words)
+    // and writes dst[(4i + l) · stride] for l < 4, all in bounds for i < quads (checked
+    // above); quads ≥ 1 (n ≥ 1), so `DLS`/`LE` run the loop exactly quads times.
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            "vldrw.u32    q2, [{off}]",
+            "dls   lr, {quads}",
+            "2:",
+            "vldrb.s32    q0, [r1], #4",
+            "vldrb.s32    q1, [r3], #4",
+            "vadd.i32     q0, q0, {oa}",
+            "vadd.i32     q1, q1, {ob}",
+            "vsli.32      q0, q1, #16",
+            "vstrw.32     q0, [{dp}, q2, uxtw #2]",
+            "add   {dp}, {dp}, {sb}",
+            "le    lr, 2b",
+            off = in(reg) offsets.as_ptr(),
+            quads = in(reg) quads,
+            // The widening byte loads take only low registers as their base.
+            inout("r1") a.as_ptr() => _,
+            inout("r3") b.as_ptr() => _,
+            dp = inout(reg) dst.as_mut_ptr() => _,
+            sb = in(reg) stride * 16,
+            oa = in(reg) oa as i32,
+            ob = in(reg) ob as i32,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _,
+            options(nostack),
+        );
+    }
+}
