@@ -231,7 +231,21 @@ pub fn dot2x2_row(
     if !fits {
         return false;
     }
-    // With Helium the pair loop below calls its `dot2x2`.
+    // With Helium: its row loop over the pairs, then the pair loop below for an odd last
+    // position (or every pair, for odd `n` or `n = 2`), which calls its `dot2x2`.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    if n % 2 == 0 && n >= 4 && positions >= 2 {
+        let pairs = positions / 2;
+        if crate::mve::dot2x2_row_pairs(x, (step, n), pairs, w, bias, (acc0, acc1, astep)) {
+            if positions % 2 == 1 {
+                let q = positions - 1;
+                let bias4 = [bias[0], bias[0], bias[1], bias[1]];
+                let r = dot2x2(x.get(q * step..).unwrap_or(&[]), 0, w, n, bias4);
+                store_pair(acc0, acc1, astep, q, false, r);
+            }
+            return true;
+        }
+    }
     #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if n % 2 == 0 && n > 0 {
         let pairs = positions / 2;

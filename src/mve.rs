@@ -130,3 +130,143 @@ pub fn pack_row_quads(
         );
     }
 }
+
+/// [`crate::dsp::dot2x2_row`]'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
+/// `acc0[q·astep] = bias[0] + x_q·w_0`, `acc0[(q + 1)·astep] = bias[0] + x_{q+1}·w_0` and the
+/// same with `acc1`, `bias[1]` and `w_1`, where `x_q = x[q·step .. q·step + n]` and the
+/// channels' words are interleaved in `w`. The pair loop is assembly too (about 22
+/// instructions per pair around the 9-instruction, 32-MAC inner loop; 16 more for the last two
+/// words when `n ≡ 2 mod 4`). Returns false, doing nothing, for any other `n` or a slice too
+/// short for `pairs`.
+pub fn dot2x2_row_pairs(
+    x: &[u32],
+    (step, n): (usize, usize),
+    pairs: usize,
+    w: &[u32],
+    bias: [i32; 2],
+    (acc0, acc1, astep): (&mut [i32], &mut [i32], usize),
+) -> bool {
+    if pairs == 0 {
+        return true;
+    }
+    let last = 2 * pairs - 1;
+    let fits = matches!(n % 4, 0 | 2)
+        && n >= 4
+        && pairs <= usize::MAX / 4
+        && step <= usize::MAX / 8
+        && astep <= usize::MAX / 8
+        && last
+            .checked_mul(step)
+            .and_then(|a| a.checked_add(n))
+            .is_some_and(|e| e <= x.len())
+        && n.checked_mul(2).is_some_and(|e| e <= w.len())
+        && last
+            .checked_mul(astep)
+            .is_some_and(|a| a < acc0.len() && a < acc1.len());
+    if !fits {
+        return false;
+    }
+    // The pair loop's state, read back after each pair: accumulator pointers, accumulator
+    // step (bytes), biases, weights, the advance from one pair's end to the next pair's
+    // start (bytes), the inner loop's count, pairs left.
+    let mut st = [
+        acc0.as_mut_ptr() as u32,
+        acc1.as_mut_ptr() as u32,
+        (astep * 4) as u32,
+        bias[0] as u32,
+        bias[1] as u32,
+        w.as_ptr() as u32,
+        (2 * step * 4).wrapping_sub(n * 4) as u32,
+        (n / 4) as u32,
+        pairs as u32,
+    ];
+    // The last two words of a pair (`n ≡ 2 mod 4`): per word, its two positions' words and
+    // the two channels' weights through four `SMLAD`s.
+    macro_rules! pairs {
+        ($($tail:literal),*) => {
+            core::arch::asm!(
+                "2:",
+                "ldr   {t}, [{st}, #28]",
+                "dls   lr, {t}",
+                "3:",
+                "vldrw.u32    q0, [{x0}], #16",
+                "vldrw.u32    q1, [{x1}], #16",
+                "vld20.32     {{q2, q3}}, [{w}]",
+                "vld21.32     {{q2, q3}}, [{w}]!",
+                "vmlava.s16   r0, q0, q2",
+                "vmlava.s16   r2, q1, q2",
+                "vmlava.s16   r4, q0, q3",
+                "vmlava.s16   r8, q1, q3",
+                "le    lr, 3b",
+                $($tail,)*
+                "ldrd  {t}, {u}, [{st}]",
+                "ldr   {w}, [{st}, #8]",
+                "str   r0, [{t}]",
+                "str   r2, [{t}, {w}]",
+                "str   r4, [{u}]",
+                "str   r8, [{u}, {w}]",
+                "add   {t}, {t}, {w}, lsl #1",
+                "add   {u}, {u}, {w}, lsl #1",
+                "strd  {t}, {u}, [{st}]",
+                "ldrd  r0, r4, [{st}, #12]",
+                "mov   r2, r0",
+                "mov   r8, r4",
+                "ldrd  {w}, {t}, [{st}, #20]",
+                "add   {x0}, {x0}, {t}",
+                "add   {x1}, {x1}, {t}",
+                "ldr   {t}, [{st}, #32]",
+                "subs  {t}, {t}, #1",
+                "str   {t}, [{st}, #32]",
+                "bne   2b",
+                st = in(reg) st.as_mut_ptr(),
+                x0 = inout(reg) x.as_ptr() => _,
+                x1 = inout(reg) x.as_ptr().add(step) => _,
+                w = inout(reg) w.as_ptr() => _,
+                t = out(reg) _,
+                u = out(reg) _,
+                v = out(reg) _,
+                inout("r0") bias[0] => _,
+                inout("r2") bias[0] => _,
+                inout("r4") bias[1] => _,
+                inout("r8") bias[1] => _,
+                out("lr") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                options(nostack),
+            )
+        };
+    }
+    // SAFETY: pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
+    // most at last·step + n ≤ x.len(), and w[..2n] (checked above); n / 4 ≥ 1, so the inner
+    // `DLS`/`LE` loop runs exactly n / 4 times, and with the tail (n mod 4 = 2) leaves both
+    // x pointers n words on and the weight pointer 2n words on; the advance (2·step − n
+    // words) brings the x pointers to the next pair's start. The stores go to
+    // acc[q·astep] and acc[(q + 1)·astep] with q + 1 ≤ last, in bounds of both accumulator
+    // slices (checked above). `st` is a live local array of 9 words.
+    #[allow(unsafe_code)]
+    unsafe {
+        if n % 4 == 0 {
+            pairs!("@ {v}");
+        } else {
+            pairs!(
+                "ldr   {t}, [{x0}], #4",
+                "ldr   {u}, [{x1}], #4",
+                "ldr   {v}, [{w}], #4",
+                "smlad r0, {t}, {v}, r0",
+                "smlad r2, {u}, {v}, r2",
+                "ldr   {v}, [{w}], #4",
+                "smlad r4, {t}, {v}, r4",
+                "smlad r8, {u}, {v}, r8",
+                "ldr   {t}, [{x0}], #4",
+                "ldr   {u}, [{x1}], #4",
+                "ldr   {v}, [{w}], #4",
+                "smlad r0, {t}, {v}, r0",
+                "smlad r2, {u}, {v}, r2",
+                "ldr   {v}, [{w}], #4",
+                "smlad r4, {t}, {v}, r4",
+                "smlad r8, {u}, {v}, r8"
+            );
+        }
+    }
+    true
+}
