@@ -1,10 +1,13 @@
 //! Runs the epssn kernels built with the `dsp` feature (SMLAD/SXTB16 inline assembly) on a
-//! QEMU Cortex-M7 and compares them with the plain kernels, bit for bit, on every EPSSN-S
-//! layer (random weights; random, all-127 and all-−128 inputs). It also averages pings with
+//! QEMU Cortex-M7, or with the `mve` feature (Helium) on a QEMU Cortex-M55, and compares them
+//! with the plain kernels, bit for bit, on every layer of the build's spec (random weights;
+//! random, all-127 and all-−128 inputs), and the inner loops with plain loops on random
+//! lengths and tails. It also averages pings with
 //! `epssn::ping_average` and checks that the device gets the host's bytes.
 //!
 //! Run: `cd qemu-check && cargo run --release` (needs `qemu-system-arm`; exits non-zero on
-//! any mismatch). A standalone crate so the library workspace stays host-only.
+//! any mismatch); on the Cortex-M55: `cargo run --release --target thumbv8m.main-none-eabihf
+//! --features mve`. A standalone crate so the library workspace stays host-only.
 #![no_std]
 #![no_main]
 
@@ -340,6 +343,16 @@ fn main() -> ! {
     if !same {
         failures += 1;
     }
+    let (runs, bad) = inner_loops(&mut rng);
+    hprintln!(
+        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8): {} random cases, {} mismatches",
+        runs,
+        bad
+    );
+    checked += 1;
+    if bad > 0 {
+        failures += 1;
+    }
     hprintln!("{} layer runs, {} mismatches", checked, failures);
     if failures == 0 {
         debug::exit(debug::EXIT_SUCCESS);
@@ -356,4 +369,112 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     debug::exit(debug::EXIT_FAILURE);
     // Unreachable after the semihosting exit; trap if it ever returns.
     cortex_m::asm::udf()
+}
+
+/// The `epssn::dsp` inner loops (with `dsp` their SMLAD assembly, with `mve` their Helium
+/// assembly) against plain loops written here, on random lengths, strides, offsets and
+/// values, every tail included (lengths not a multiple of 4, an odd last position, `n` of
+/// 2, 4 and 6 words). Returns (cases, mismatches).
+fn inner_loops(rng: &mut Rng) -> (u32, u32) {
+    use epssn::dsp::{dot2x2, dot2x2_row, pack, pack_rows, requant_row_s8, smmulr};
+    let (mut runs, mut bad) = (0u32, 0u32);
+    let mut x = [0u32; 2048];
+    let mut w = [0u32; 512];
+    let mut bytes = [0i8; 512];
+    for case in 0..600u32 {
+        for v in x.iter_mut().chain(w.iter_mut()) {
+            *v = rng.next() as u32;
+        }
+        rng.fill(&mut bytes);
+        let n = 1 + (rng.next() % 40) as usize;
+        let step = n + (rng.next() % 8) as usize;
+        let positions = 1 + (rng.next() % 9) as usize;
+        let astep = 1 + (rng.next() % 3) as usize;
+        let bias = [rng.next() as i32 >> 8, rng.next() as i32 >> 8];
+        // Plain dot products, wrapping as the instructions do.
+        let plain = |q: usize, c: usize| -> i32 {
+            let mut a = bias[c];
+            for k in 0..n {
+                let (xv, wv) = (x[q * step + k], w[2 * k + c]);
+                let lo = (xv as u16 as i16 as i32).wrapping_mul(wv as u16 as i16 as i32);
+                let hi =
+                    ((xv >> 16) as u16 as i16 as i32).wrapping_mul((wv >> 16) as u16 as i16 as i32);
+                a = a.wrapping_add(lo).wrapping_add(hi);
+            }
+            a
+        };
+        let d = dot2x2(&x, step, &w, n, [bias[0], bias[0], bias[1], bias[1]]);
+        runs += 1;
+        if d != [plain(0, 0), plain(1, 0), plain(0, 1), plain(1, 1)] {
+            bad += 1;
+        }
+        let (mut acc0, mut acc1) = ([0i32; 32], [0i32; 32]);
+        let ok = dot2x2_row(
+            &x,
+            step,
+            positions,
+            &w,
+            n,
+            bias,
+            (&mut acc0, &mut acc1, astep),
+        );
+        runs += 1;
+        if !ok
+            || (0..positions)
+                .any(|q| acc0[q * astep] != plain(q, 0) || acc1[q * astep] != plain(q, 1))
+        {
+            bad += 1;
+        }
+        // pack_rows: a line column of two rows, with and without offsets.
+        let len = (rng.next() % 70) as usize;
+        let stride = 1 + (rng.next() % 5) as usize;
+        let (oa, ob) = if case % 2 == 0 { (128, 128) } else { (0, 0) };
+        let (ra, rb) = (&bytes[..len], &bytes[100..100 + len]);
+        let mut dst = [0u32; 512];
+        pack_rows(&mut dst, stride, ra, rb, oa, ob);
+        runs += 1;
+        if (0..len).any(|j| dst[j * stride] != pack(ra[j] as i16 + oa, rb[j] as i16 + ob)) {
+            bad += 1;
+        }
+        // requant_row_s8 with each of ReLU and the skip table.
+        let mut acc = [0i32; 70];
+        for a in acc.iter_mut() {
+            *a = rng.next() as i32 >> (rng.next() % 16);
+        }
+        let mut table = [0i32; 256];
+        for t in table.iter_mut() {
+            *t = (rng.next() % 300) as i32 - 150;
+        }
+        let multiplier = (1 << 30) + (rng.next() % (1 << 30)) as i32;
+        let (left1, right) = ((rng.next() % 3) as u32, (rng.next() % 12) as u32);
+        let half = if right == 0 { 0 } else { 1 << (right - 1) };
+        let neg = -((rng.next() % 2) as i32);
+        let relu = case % 3 == 0;
+        let skip = if case % 4 < 2 { Some(&table) } else { None };
+        let mut out = [0i8; 70];
+        rng.fill(&mut out[..len]);
+        let old = out;
+        requant_row_s8(
+            &acc[..len],
+            &mut out[..len],
+            (multiplier, left1, right, half, neg),
+            relu,
+            skip,
+        );
+        runs += 1;
+        let expect = |i: usize| -> i8 {
+            let x = smmulr(acc[i].wrapping_shl(left1), multiplier);
+            let t = x.wrapping_add(half).wrapping_add((x >> 31) & neg) >> right;
+            let t = if relu { t.max(0) } else { t };
+            let t = match skip {
+                Some(l) => t.saturating_add(l[old[i] as u8 as usize]),
+                None => t,
+            };
+            t.clamp(-128, 127) as i8
+        };
+        if (0..len).any(|i| out[i] != expect(i)) || out[len..] != old[len..] {
+            bad += 1;
+        }
+    }
+    (runs, bad)
 }
