@@ -64,6 +64,10 @@ echo "(DTCM: statics above; the stack is the rest of DTCM, below them; board ste
 step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"
 (cd qemu-check && cargo fmt -- --check && cargo clippy --release -- -D warnings && timeout 600 cargo run --release)
 
+step "Helium assembly kernels vs portable kernels on the Cortex-M55 in QEMU"
+(cd qemu-check && cargo clippy --release --target thumbv8m.main-none-eabihf --features mve -- -D warnings \
+    && timeout 600 cargo run --release --target thumbv8m.main-none-eabihf --features mve)
+
 step "Cortex-M55 (QEMU mps3-an547): format, clippy, release build, boot self-test"
 # Its own workspace and target directory (boards/mps3-an547/target); the same self-test crate.
 m55_start=$SECONDS
