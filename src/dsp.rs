@@ -387,6 +387,19 @@ pub fn requant_max_row(
     relu: bool,
     max: i8,
 ) -> i8 {
+    #[allow(unused_mut)]
+    let (mut acc, mut out, mut max) = (acc, out, max);
+    // With Helium: the blocks of four values, then the loop below for the rest.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    if left1 < 32 && right < 32 {
+        let quads = acc.len().min(out.len()) / 4;
+        if quads > 0 {
+            let rq = (multiplier, left1, right, half, neg);
+            max = crate::mve::requant_max_row_quads(acc, out, rq, relu, max, quads);
+            acc = &acc[4 * quads..];
+            out = &mut out[4 * quads..];
+        }
+    }
     let len = acc.len().min(out.len());
     #[cfg(all(feature = "dsp", target_arch = "arm"))]
     if len > 0 && left1 < 32 && right < 32 {

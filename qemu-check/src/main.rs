@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -376,7 +376,9 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 /// values, every tail included (lengths not a multiple of 4, an odd last position, `n` of
 /// 2, 4 and 6 words). Returns (cases, mismatches).
 fn inner_loops(rng: &mut Rng) -> (u32, u32) {
-    use epssn::dsp::{dot2x2, dot2x2_row, pack, pack_rows, requant_row_s8, smmulr};
+    use epssn::dsp::{
+        dot2x2, dot2x2_row, pack, pack_rows, requant_max_row, requant_row_s8, smmulr,
+    };
     let (mut runs, mut bad) = (0u32, 0u32);
     let mut x = [0u32; 2048];
     let mut w = [0u32; 512];
@@ -473,6 +475,30 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
             t.clamp(-128, 127) as i8
         };
         if (0..len).any(|i| out[i] != expect(i)) || out[len..] != old[len..] {
+            bad += 1;
+        }
+        // requant_max_row: the same arithmetic, the int8 (or ReLU) clamp, and the maximum.
+        let max0 = (rng.next() % 256) as u8 as i8;
+        let mut out = old;
+        let got = requant_max_row(
+            &acc[..len],
+            &mut out[..len],
+            (multiplier, left1, right, half, neg),
+            relu,
+            max0,
+        );
+        runs += 1;
+        let plain_max = |i: usize| -> i8 {
+            let x = smmulr(acc[i].wrapping_shl(left1), multiplier);
+            let t = x.wrapping_add(half).wrapping_add((x >> 31) & neg) >> right;
+            if relu {
+                t.clamp(0, 127) as i8
+            } else {
+                t.clamp(-128, 127) as i8
+            }
+        };
+        let want = (0..len).map(plain_max).fold(max0, i8::max);
+        if got != want || (0..len).any(|i| out[i] != plain_max(i)) || out[len..] != old[len..] {
             bad += 1;
         }
     }
