@@ -42,12 +42,12 @@ pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod dsp;
-#[cfg(all(feature = "mve", target_arch = "arm"))]
-pub mod mve;
 pub mod fault;
 pub mod kernels;
 pub mod link;
 pub mod model;
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+pub mod mve;
 pub mod pairing;
 pub mod ping_average;
 pub mod requant;
