@@ -1,5 +1,5 @@
 //! Links against the repository's memory map (`memory.x` at the root; for the Cortex-M55,
-//! `boards/mps3-an547/memory.x`) with the RAM region widened to the board's data memory (4 MiB
+//! `boards/mps3-an547/memory/memory.x`) with the RAM region widened to the board's data memory (4 MiB
 //! of SRAM on the MPS2-AN500, 512 KiB of DTCM on the MPS3-AN547): this harness keeps three whole activations of
 //! up to 128 KiB on its stack, which the firmware's RAM budget (weights/budgets.json, the
 //! root memory.x) is not meant to hold. FLASH, origins and everything else are the root's.
@@ -9,7 +9,7 @@ fn main() {
     // the MPS3-AN547 board's map, its RAM widened to the board's 512 KiB of DTCM.
     let m55 = std::env::var("TARGET").is_ok_and(|t| t.starts_with("thumbv8m"));
     let (map, ram) = if m55 {
-        ("../boards/mps3-an547/memory.x", "512K")
+        ("../boards/mps3-an547/memory/memory.x", "512K")
     } else {
         ("../memory.x", "4M")
     };

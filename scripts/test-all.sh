@@ -39,9 +39,13 @@ cargo clippy --workspace --all-targets -- -D warnings
 # host-sim's `train` feature (the `train` command, burn): the code only that build compiles.
 cargo clippy -p host-sim --features train --all-targets -- -D warnings
 
-step "no_std library build for thumbv7em-none-eabihf (with and without defmt)"
+step "no_std library build for thumbv7em-none-eabihf (with and without defmt); clippy on the dsp and mve paths"
 cargo build -p epssn --lib --target thumbv7em-none-eabihf
 cargo build -p epssn --lib --target thumbv7em-none-eabihf --features defmt
+# The assembly paths build only for their cores: lint them there (host clippy never sees them).
+cargo clippy -p epssn --lib --target thumbv7em-none-eabihf --features dsp -- -D warnings
+RUSTFLAGS="-C target-cpu=cortex-m55" cargo clippy -p epssn --lib --target thumbv8m.main-none-eabihf \
+    --features mve --target-dir target/mve -- -D warnings
 
 step "firmware: clippy and release build (and with defmt logging)"
 (cd firmware && cargo clippy --release -- -D warnings && cargo build --release)
@@ -118,6 +122,9 @@ EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-reference --test bitexact_ke
     cargo run --release --target-dir target/epssn-p)
 EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
     --frames 3 --faults 0 --json
+# And on the Cortex-M55 with the Helium kernels (weights/budgets-m55-epssn-p.json).
+EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
+    --target m55 --frames 3 --faults 0 --json
 echo "(EPSSN-P step $((SECONDS - p_start)) s)"
 
 step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"

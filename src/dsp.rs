@@ -141,7 +141,7 @@ pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i3
     #[cfg(all(feature = "mve", target_arch = "arm"))]
     return crate::mve::dot2x2(x, step, w, n, acc);
     #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
-    if n % 2 == 0 {
+    if n.is_multiple_of(2) {
         if n == 0 {
             return acc;
         }
@@ -234,7 +234,7 @@ pub fn dot2x2_row(
     // With Helium: its row loop over the pairs, then the pair loop below for an odd last
     // position (or every pair, for odd `n` or `n = 2`), which calls its `dot2x2`.
     #[cfg(all(feature = "mve", target_arch = "arm"))]
-    if n % 2 == 0 && n >= 4 && positions >= 2 {
+    if n.is_multiple_of(2) && n >= 4 && positions >= 2 {
         let pairs = positions / 2;
         if crate::mve::dot2x2_row_pairs(x, (step, n), pairs, w, bias, (acc0, acc1, astep)) {
             if positions % 2 == 1 {
@@ -247,7 +247,7 @@ pub fn dot2x2_row(
         }
     }
     #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
-    if n % 2 == 0 && n > 0 {
+    if n.is_multiple_of(2) && n > 0 {
         let pairs = positions / 2;
         if pairs > 0 {
             // The pair loop's state, read back after each dot product (the inner loop needs
@@ -651,7 +651,7 @@ pub fn pack_strided(
 #[inline(always)]
 pub fn exp_sums(logits: &[i8], m: i8, exp: &[u16; 256]) -> (u32, u32) {
     #[cfg(all(feature = "dsp", target_arch = "arm"))]
-    if !logits.is_empty() && logits.len() % 4 == 0 {
+    if !logits.is_empty() && logits.len().is_multiple_of(4) {
         let (mut s, mut u) = (0u32, 0u32);
         // SAFETY: reads logits[..len] word by word (unaligned LDR is allowed on ARMv7-M;
         // len is a non-zero multiple of 4, so the loop ends exactly at the end) and exp at

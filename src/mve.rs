@@ -95,15 +95,15 @@ pub fn pack_row_quads(
     if !fits || a.len() < n || b.len() < n || stride > usize::MAX / 16 {
         return;
     }
-    // Scatter offsets in words: columns j, j + 1, j + 2, j + 3 of one block.
-    let offsets = [0, stride as u32, 2 * stride as u32, 3 * stride as u32];
     // SAFETY: block i reads a[4i..4i + 4] and b[4i..4i + 4] (byte loads widened to words)
     // and writes dst[(4i + l) · stride] for l < 4, all in bounds for i < quads (checked
     // above); quads ≥ 1 (n ≥ 1), so `DLS`/`LE` run the loop exactly quads times.
     #[allow(unsafe_code)]
     unsafe {
         core::arch::asm!(
-            "vldrw.u32    q2, [{off}]",
+            // Scatter offsets in words, columns j .. j + 4 of a block: [0, 1, 2, 3] · stride.
+            "vidup.u32    q2, r0, #1",
+            "vmul.i32     q2, q2, {s}",
             "dls   lr, {quads}",
             "2:",
             "vldrb.s32    q0, [r1], #4",
@@ -114,7 +114,9 @@ pub fn pack_row_quads(
             "vstrw.32     q0, [{dp}, q2, uxtw #2]",
             "add   {dp}, {dp}, {sb}",
             "le    lr, 2b",
-            off = in(reg) offsets.as_ptr(),
+            // `VIDUP` takes its start in an even register.
+            inout("r0") 0u32 => _,
+            s = in(reg) stride,
             quads = in(reg) quads,
             // The widening byte loads take only low registers as their base.
             inout("r1") a.as_ptr() => _,

@@ -71,7 +71,7 @@ impl Target {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
         let dir = match self {
             Target::M7 => root,
-            Target::M55 => root.join(self.crate_dir()),
+            Target::M55 => root.join(self.crate_dir()).join("memory"),
         };
         per_spec_file(&dir, "memory", "x", epssn::config::SPEC_FILE_NAME)
     }
