@@ -777,6 +777,34 @@ pub fn mean_column(
     )
 }
 
+/// Four adjacent columns `col .. col + 4` of [`cost_column`] (or of [`mean_column`] when
+/// `sum`), one tap `(c, wl, wr)` per column: the same values, in one pass down the rows with
+/// Helium (`mve::table_columns4`). False, and nothing written, in other builds or under
+/// conditions either one-column function would refuse; the caller then goes column by column.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn table_columns4(
+    out: &mut [i8],
+    reference: &[i8],
+    src: &[i8],
+    (width, col): (usize, usize),
+    taps: [(usize, i16, i16); 4],
+    table: &[i8; 512],
+    sum: bool,
+) -> bool {
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    {
+        let cs = taps.map(|t| t.0);
+        let weights = taps.map(|t| (t.1, t.2));
+        crate::mve::table_columns4(out, reference, src, (width, col), cs, weights, table, sum)
+    }
+    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+    {
+        let _ = (out, reference, src, width, col, taps, table, sum);
+        false
+    }
+}
+
 /// How [`table_column`] combines the reference value with the warped source value.
 #[derive(Clone, Copy)]
 enum Combine {

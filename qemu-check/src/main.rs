@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row, table_columns4): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -501,6 +501,63 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if got != want || (0..len).any(|i| out[i] != plain_max(i)) || out[len..] != old[len..] {
             bad += 1;
         }
+        runs += 1;
+        if !table_columns_agree(rng, &bytes) {
+            bad += 1;
+        }
     }
     (runs, bad)
+}
+
+/// `dsp::table_columns4` (four cost-volume columns of two views in one pass) against the
+/// one-column formula on a random piece: Helium builds must take it, the others refuse it and
+/// leave `out` alone.
+fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    let width = 4 + (rng.next() % 13) as usize;
+    let rows = 1 + (rng.next() % 16) as usize;
+    let n = rows * width;
+    let col = (rng.next() as usize) % (width - 3);
+    let taps: [(usize, i16, i16); 4] = core::array::from_fn(|_| {
+        let c = (rng.next() as usize) % (width - 1);
+        let wr = (rng.next() % 257) as i16;
+        if rng.next().is_multiple_of(8) {
+            (c, 0, 0)
+        } else {
+            (c, 256 - wr, wr)
+        }
+    });
+    let mut table = [0i8; 512];
+    rng.fill(&mut table);
+    let sum = rng.next().is_multiple_of(2);
+    let (reference, src) = (&bytes[..n], &bytes[256..256 + n]);
+    let mut out = [0i8; 256];
+    rng.fill(&mut out);
+    let old = out;
+    let took = epssn::dsp::table_columns4(
+        &mut out[..n],
+        reference,
+        src,
+        (width, col),
+        taps,
+        &table,
+        sum,
+    );
+    if took != cfg!(feature = "mve") {
+        return false;
+    }
+    (0..n).all(|i| {
+        let (k, b) = (i / width, i % width);
+        if !took || b < col || b >= col + 4 {
+            return out[i] == old[i];
+        }
+        let (c, wl, wr) = taps[b - col];
+        let s = &src[k * width..];
+        let w = (s[c] as i32 * wl as i32 + s[c + 1] as i32 * wr as i32 + 128) >> 8;
+        let index = if sum {
+            reference[i] as i32 + w + 256
+        } else {
+            reference[i] as i32 - w + 255
+        };
+        out[i] == table[index as usize]
+    })
 }

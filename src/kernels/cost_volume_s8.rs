@@ -498,7 +498,11 @@ impl<'a> CostVolume<'a> {
             if self.views == 1 {
                 // Column by column as the variance: the DSP loop where the tap has two
                 // columns, else the plain arithmetic (`v0 + w + 256` in 0..=510).
+                let done = self.quad_columns(out, reference, src0, &taps[0], true);
                 for (b, t) in taps[0][..width].iter().enumerate() {
+                    if done & (1 << b) != 0 {
+                        continue;
+                    }
                     if let Some((c, wl, wr)) = t.window(width) {
                         let table = &self.mean_table;
                         if crate::dsp::mean_column(
@@ -528,7 +532,11 @@ impl<'a> CostVolume<'a> {
         if self.views == 1 {
             // Column by column (the column's tap stays in registers down the rows), each
             // tap as two adjacent source columns `c, c + 1` and their weights.
+            let done = self.quad_columns(out, reference, src0, &taps[0], false);
             for (b, t) in taps[0][..width].iter().enumerate() {
+                if done & (1 << b) != 0 {
+                    continue;
+                }
                 if let Some((c, wl, wr)) = t.window(width) {
                     if crate::dsp::cost_column(
                         out,
@@ -568,6 +576,40 @@ impl<'a> CostVolume<'a> {
         let requant = self.cq.requant;
         three_view_columns(out, reference, [src0, src1], width, &taps, requant, self.cq);
         Ok(())
+    }
+}
+
+impl CostVolume<'_> {
+    /// Two views with Helium: the columns of a piece four at a time where all four taps have
+    /// two columns ([`crate::dsp::table_columns4`]; the mean table when `mean`), as a mask of
+    /// the columns done (bit `b`, `width ≤ MAX_WIDTH = 64`). 0 in builds without Helium, so
+    /// the column loops there compile as before.
+    #[inline(always)]
+    fn quad_columns(
+        &self,
+        out: &mut [i8],
+        reference: &[i8],
+        src: &[i8],
+        taps: &[Tap; MAX_WIDTH],
+        mean: bool,
+    ) -> u64 {
+        if !cfg!(all(feature = "mve", target_arch = "arm")) {
+            return 0;
+        }
+        let width = self.shape.width.min(MAX_WIDTH);
+        let table = if mean { &self.mean_table } else { &self.table };
+        let mut done = 0u64;
+        for b in (0..width.saturating_sub(3)).step_by(4) {
+            let w = [0, 1, 2, 3].map(|k| taps[b + k].window(width));
+            if let [Some(t0), Some(t1), Some(t2), Some(t3)] = w {
+                let quad = [t0, t1, t2, t3];
+                let cols = (self.shape.width, b);
+                if crate::dsp::table_columns4(out, reference, src, cols, quad, table, mean) {
+                    done |= 0xf << b;
+                }
+            }
+        }
+        done
     }
 }
 
