@@ -3,11 +3,11 @@
 //!
 //! With the `dsp` cargo feature on an ARM target the functions are single `SMLAD` /
 //! `SXTB16` instructions, or short hand-scheduled loops ([`dot2x2`], [`pack_rows`]), through
-//! `core::arch::asm!` (the only `unsafe` in the crate; the intrinsics in `core::arch::arm`
-//! are unstable). Everywhere else they are plain Rust with the instructions' exact
-//! semantics, so the host tests exercise the same data flow. With the `mve` feature (a
-//! Cortex-M55/M85) the loops that have a Helium version call the `mve` module (`src/mve.rs`) instead; the rest
-//! stay `SMLAD`.
+//! `core::arch::asm!` (with the `mve` module, the only `unsafe` in the crate; the intrinsics
+//! in `core::arch::arm` are unstable). Everywhere else they are plain Rust with the
+//! instructions' exact semantics, so the host tests exercise the same data flow. With the
+//! `mve` feature (a Cortex-M55/M85) the loops that have a Helium version call the `mve`
+//! module (`src/mve.rs`) instead; the rest stay `SMLAD`.
 
 /// `SMLAD`: `acc + lo(x)·lo(y) + hi(x)·hi(y)` on signed 16-bit halves, wrapping like the
 /// instruction (the kernels' accumulator bounds exclude overflow anyway).
