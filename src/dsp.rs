@@ -652,7 +652,11 @@ pub fn pack_strided(
 /// per logit instead of 7.
 #[inline(always)]
 pub fn exp_sums(logits: &[i8], m: i8, exp: &[u16; 256]) -> (u32, u32) {
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    if let Some(sums) = crate::mve::exp_sums(logits, m, exp) {
+        return sums;
+    }
+    #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if !logits.is_empty() && logits.len().is_multiple_of(4) {
         let (mut s, mut u) = (0u32, 0u32);
         // SAFETY: reads logits[..len] word by word (unaligned LDR is allowed on ARMv7-M;

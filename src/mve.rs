@@ -539,3 +539,51 @@ pub fn table_columns4(
     }
     true
 }
+
+/// [`crate::dsp::exp_sums`] with Helium for a non-zero multiple of 4 logits: four logits per
+/// iteration, the table read by a halfword gather, `VADDVA` adding the four weights to `S`
+/// and `VMLADAVA` their products with the bins' indices to `T` (7 instructions per four
+/// logits; the `DSP` loop takes 5 per logit). Returns `None` for other lengths.
+#[inline(always)]
+pub fn exp_sums(logits: &[i8], m: i8, exp: &[u16; 256]) -> Option<(u32, u32)> {
+    let n = logits.len();
+    if n == 0 || !n.is_multiple_of(4) || n > u32::MAX as usize {
+        return None;
+    }
+    let (s, t): (u32, u32);
+    // SAFETY: iteration k (exactly n/4 ≥ 1 of them, by `DLS`/`LE`) reads logits[4k..4k + 4]
+    // and gathers exp at (m − q) & 0xff < 256, the portable loop's `(m − q) as u8`.
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            "vdup.32      q3, {m}",
+            "vmov.i32     q4, #0xff",
+            "vidup.u32    q2, r4, #1",
+            "dls   lr, {quads}",
+            "2:",
+            "vldrb.s32    q0, [r1], #4",
+            "vsub.i32     q0, q3, q0",
+            "vand         q0, q0, q4",
+            "vldrh.u32    q1, [{ex}, q0, uxtw #1]",
+            "vaddva.u32   r0, q1",
+            "vmladava.u32 r2, q1, q2",
+            "vadd.i32     q2, q2, {four}",
+            "le    lr, 2b",
+            m = in(reg) m as i32,
+            quads = in(reg) n / 4,
+            inout("r1") logits.as_ptr() => _,
+            // `VIDUP` starts from an even register; the sums' accumulators must be even too.
+            inout("r4") 0u32 => _,
+            inout("r0") 0u32 => s,
+            inout("r2") 0u32 => t,
+            ex = in(reg) exp.as_ptr(),
+            four = in(reg) 4u32,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            out("d8") _, out("d9") _,
+            options(nostack, readonly),
+        );
+    }
+    Some((s, t))
+}

@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row, table_columns4): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row, table_columns4, exp_sums): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -503,6 +503,27 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         }
         runs += 1;
         if !table_columns_agree(rng, &bytes) {
+            bad += 1;
+        }
+        // exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
+        let mut exp = [0u16; 256];
+        for e in exp.iter_mut() {
+            *e = rng.next() as u16;
+        }
+        let logits = &bytes[..len];
+        let m = if case % 2 == 0 {
+            logits.iter().copied().max().unwrap_or(0)
+        } else {
+            rng.next() as i8
+        };
+        let (mut ps, mut pt) = (0u32, 0u32);
+        for (i, &q) in logits.iter().enumerate() {
+            let e = exp[(m as i32 - q as i32) as u8 as usize] as u32;
+            ps = ps.wrapping_add(e);
+            pt = pt.wrapping_add(e.wrapping_mul(i as u32));
+        }
+        runs += 1;
+        if epssn::dsp::exp_sums(logits, m, &exp) != (ps, pt) {
             bad += 1;
         }
     }
