@@ -119,13 +119,14 @@ def main():
             fail(f"{topic}: {len(topics[topic])} messages for {len(pairs)} pairs")
     worst = 0.0
     for k, pair in enumerate(pairs):
-        truth = topics["/depth/ground_truth"][k][2] if topics["/depth/ground_truth"] else None
+        # The ground truth decoded once per pair, for both models.
+        truth = topics["/depth/ground_truth"]
+        gt = depth_image(truth[k][2])[2] if truth else None
         for model in ("int8", "float"):
             h, w, depth = depth_image(topics[f"/depth/{model}"][k][2])
             if (h, w) != (rows, cols):
                 fail(f"/depth/{model} {k}: {h} x {w}, the spec says {rows} x {cols}")
-            if truth is not None:
-                _, _, gt = depth_image(truth)
+            if gt is not None:
                 mae = 1000.0 / (h * w) * sum(
                     abs(d - min(max(g, r_min), r_max)) for d, g in zip(depth, gt)
                 )
