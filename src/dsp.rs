@@ -576,7 +576,7 @@ pub fn requant_row_s8(
 /// `j < count` (a column of two int8 planes into i16 pairs). Does nothing when a slice is too
 /// short for `count` and the strides (the kernels never pass such slices). With the `dsp`
 /// feature on ARM: 8 instructions per word without offsets (10 with), against about 12.5 for
-/// the Rust loop.
+/// the Rust loop; with Helium 2.5 per word (`mve::pack_strided_quads`).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn pack_strided(
@@ -594,6 +594,27 @@ pub fn pack_strided(
     if !(fits(dst.len(), dstride) && fits(a.len(), sstride) && fits(b.len(), sstride)) {
         return;
     }
+    // With Helium: blocks of four by gathers, then the rest below.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    let (dst, a, b, count) = {
+        let quads = count / 4;
+        let done = 4 * quads;
+        if quads > 0 {
+            crate::mve::pack_strided_quads(dst, dstride, (a, b, sstride), quads, (oa, ob));
+        }
+        if done == count {
+            return;
+        }
+        // done < count: the indices below are at most last · stride, in bounds.
+        let (Some(d), Some(a), Some(b)) = (
+            dst.get_mut(done * dstride..),
+            a.get(done * sstride..),
+            b.get(done * sstride..),
+        ) else {
+            return;
+        };
+        (d, a, b, count - done)
+    };
     #[cfg(all(feature = "dsp", target_arch = "arm"))]
     if dstride <= usize::MAX / 8 {
         // SAFETY: reads a[j·sstride] and b[j·sstride] and writes dst[j·dstride] for

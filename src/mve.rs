@@ -133,6 +133,228 @@ pub fn pack_row_quads(
     }
 }
 
+/// The four-entry blocks of [`crate::dsp::pack_strided`]: `dst[j · dstride] = pack(a[j ·
+/// sstride] + oa, b[j · sstride] + ob)` for `j < 4 · quads`, byte gathers for the two
+/// columns and a scatter store, 10 instructions per block (the `dsp` loop takes 40). Does
+/// nothing unless `dst` holds index `(4 · quads − 1) · dstride`, `a` and `b` index `(4 · quads
+/// − 1) · sstride`, and both strides are at most `usize::MAX / 16`.
+#[inline(always)]
+pub fn pack_strided_quads(
+    dst: &mut [u32],
+    dstride: usize,
+    (a, b, sstride): (&[i8], &[i8], usize),
+    quads: usize,
+    (oa, ob): (i16, i16),
+) {
+    let Some(last) = quads.checked_mul(4).and_then(|n| n.checked_sub(1)) else {
+        return;
+    };
+    let fits = |len: usize, stride: usize| last.checked_mul(stride).is_some_and(|e| e < len);
+    if dstride > usize::MAX / 16
+        || sstride > usize::MAX / 16
+        || !(fits(dst.len(), dstride) && fits(a.len(), sstride) && fits(b.len(), sstride))
+    {
+        return;
+    }
+    // SAFETY: block i reads a[(4i + l) · sstride] and b[(4i + l) · sstride] and writes
+    // dst[(4i + l) · dstride] for l < 4, all in bounds for i < quads (checked above); quads ≥
+    // 1, so `DLS`/`LE` run the loop exactly quads times.
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            // Gather offsets in bytes and scatter offsets in words: [0, 1, 2, 3] · stride.
+            "vidup.u32    q2, r0, #1",
+            "vmul.i32     q3, q2, {ss}",
+            "vmul.i32     q2, q2, {ds}",
+            "dls   lr, {quads}",
+            "2:",
+            "vldrb.s32    q0, [r1, q3]",
+            "vldrb.s32    q1, [r3, q3]",
+            "vadd.i32     q0, q0, {oa}",
+            "vadd.i32     q1, q1, {ob}",
+            "vsli.32      q0, q1, #16",
+            "vstrw.32     q0, [{dp}, q2, uxtw #2]",
+            "add   r1, r1, {sb}",
+            "add   r3, r3, {sb}",
+            "add   {dp}, {dp}, {db}",
+            "le    lr, 2b",
+            // `VIDUP` takes its start in an even register.
+            inout("r0") 0u32 => _,
+            inout("r1") a.as_ptr() => _,
+            inout("r3") b.as_ptr() => _,
+            dp = inout(reg) dst.as_mut_ptr() => _,
+            ss = in(reg) sstride,
+            ds = in(reg) dstride,
+            sb = in(reg) sstride * 4,
+            db = in(reg) dstride * 16,
+            quads = in(reg) quads,
+            oa = in(reg) oa as i32,
+            ob = in(reg) ob as i32,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack, preserves_flags),
+        );
+    }
+}
+
+/// One input row of a line fill and the offset its entries get, as [`pack_line_quads`]
+/// reads them: the row's address and the offset widened to a word.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct LineRow {
+    ptr: *const i8,
+    off: i32,
+}
+
+/// Up to [`LineRows::CAPACITY`] input rows of one line fill, in line-entry order (entries
+/// `2k` and `2k + 1` fill line word `k` of every column), every one at least `need` bytes
+/// long: [`LineRows::push`] refuses a shorter row, so [`pack_line_quads`] may read `need`
+/// bytes of each.
+pub struct LineRows<'a> {
+    /// `rows[..len]` are written (the rest is never read: no clearing per fill).
+    rows: [core::mem::MaybeUninit<LineRow>; LineRows::CAPACITY],
+    len: usize,
+    need: usize,
+    _rows: core::marker::PhantomData<&'a [i8]>,
+}
+
+impl<'a> LineRows<'a> {
+    /// Rows one call takes (16 line words: 256 bytes of stack).
+    pub const CAPACITY: usize = 32;
+
+    /// No rows yet; every row must hold `need` entries.
+    #[inline(always)]
+    pub fn new(need: usize) -> Self {
+        LineRows {
+            rows: [const { core::mem::MaybeUninit::uninit() }; LineRows::CAPACITY],
+            len: 0,
+            need,
+            _rows: core::marker::PhantomData,
+        }
+    }
+
+    /// Forgets the rows (the next call's rows follow).
+    #[inline(always)]
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// Replaces the rows with `count` rows from `next` (each row and the offset its entries
+    /// get); false, keeping those before it, at the first row shorter than `need` or when
+    /// `count` exceeds [`LineRows::CAPACITY`].
+    #[inline(always)]
+    pub fn fill_with(&mut self, count: usize, mut next: impl FnMut() -> (&'a [i8], i16)) -> bool {
+        // The count stays in a register: stores into `rows` cannot reach it.
+        let mut len = 0;
+        let mut ok = count <= LineRows::CAPACITY;
+        for slot in self.rows.iter_mut().take(count) {
+            let (row, off) = next();
+            if row.len() < self.need {
+                ok = false;
+                break;
+            }
+            slot.write(LineRow {
+                ptr: row.as_ptr(),
+                off: off as i32,
+            });
+            len += 1;
+        }
+        self.len = len;
+        ok
+    }
+
+    /// Appends `row`, whose entries get `off`; false, appending nothing, when it is full or
+    /// `row` is shorter than `need`.
+    #[inline(always)]
+    pub fn push(&mut self, row: &'a [i8], off: i16) -> bool {
+        if row.len() < self.need {
+            return false;
+        }
+        let Some(slot) = self.rows.get_mut(self.len) else {
+            return false;
+        };
+        slot.write(LineRow {
+            ptr: row.as_ptr(),
+            off: off as i32,
+        });
+        self.len += 1;
+        true
+    }
+}
+
+/// A whole line fill with Helium (the line engine's, `kernels::line`): for each pair `k` of
+/// `rows` (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw]
+/// = pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what
+/// [`crate::dsp::pack_rows`] does for one word, for up to 16 words in one call. The pair loop
+/// is assembly too: 6 instructions per line word around the 8-instruction block of four
+/// columns (the Rust loop around [`pack_row_quads`] spent about 100 per word choosing the
+/// rows and checking slices). Returns false, doing nothing, for an odd number of rows, `need`
+/// not a positive multiple of 4, or a `dst` too short.
+pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &LineRows<'_>) -> bool {
+    let (pairs, need) = (rows.len / 2, rows.need);
+    if pairs == 0 {
+        return rows.len == 0;
+    }
+    let fits = rows.len.is_multiple_of(2)
+        && need >= 4
+        && need.is_multiple_of(4)
+        && vw <= usize::MAX / 16
+        && (need - 1)
+            .checked_mul(vw)
+            .and_then(|e| e.checked_add(pairs - 1))
+            .is_some_and(|last| last < dst.len());
+    if !fits {
+        return false;
+    }
+    // SAFETY: pair k reads rows[2k] and rows[2k + 1] (k < pairs, 2·pairs = rows.len ≤
+    // CAPACITY, written by push; MaybeUninit<LineRow> has LineRow's layout), need bytes of each from its address (every pushed row holds at least need
+    // bytes, and the borrow 'a keeps them alive), and writes dst[k + j·vw] for j < need (the
+    // last index, checked above, is in bounds); need / 4 ≥ 1 and pairs ≥ 1, so the
+    // `DLS`/`LE` loop runs exactly need / 4 times per pair and the pair loop pairs times.
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            // Scatter offsets in words, columns j .. j + 4 of a block: [0, 1, 2, 3] · vw.
+            "vidup.u32    q2, r2, #1",
+            "vmul.i32     q2, q2, {dp}",
+            "2:",
+            "ldm   {tbl}!, {{r1, r2, r3, r4}}",
+            "mov   {dp}, {dk}",
+            "dls   lr, {quads}",
+            "3:",
+            "vldrb.s32    q0, [r1], #4",
+            "vldrb.s32    q1, [r3], #4",
+            "vadd.i32     q0, q0, r2",
+            "vadd.i32     q1, q1, r4",
+            "vsli.32      q0, q1, #16",
+            "vstrw.32     q0, [{dp}, q2, uxtw #2]",
+            "add   {dp}, {dp}, {sb}",
+            "le    lr, 3b",
+            "add   {dk}, {dk}, #4",
+            "subs  r0, r0, #1",
+            "bne   2b",
+            inout("r0") pairs => _,
+            // The widening byte loads take only low registers as their base; `VIDUP` takes
+            // its start in an even register.
+            out("r1") _,
+            inout("r2") 0u32 => _,
+            out("r3") _,
+            out("r4") _,
+            tbl = inout(reg) rows.rows.as_ptr() => _,
+            dk = inout(reg) dst.as_mut_ptr() => _,
+            dp = inout(reg) vw => _,
+            sb = in(reg) vw * 16,
+            quads = in(reg) need / 4,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _,
+            options(nostack),
+        );
+    }
+    true
+}
+
 /// [`crate::dsp::dot2x2_row`]'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
 /// `acc0[q·astep] = bias[0] + x_q·w_0`, `acc0[(q + 1)·astep] = bias[0] + x_{q+1}·w_0` and the
 /// same with `acc1`, `bias[1]` and `w_1`, where `x_q = x[q·step .. q·step + n]` and the

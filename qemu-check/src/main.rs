@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, requant_row_s8, requant_max_row, table_columns4, exp_sums): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, with Helium pack_line_quads): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -438,6 +438,20 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if (0..len).any(|j| dst[j * stride] != pack(ra[j] as i16 + oa, rb[j] as i16 + ob)) {
             bad += 1;
         }
+        // pack_strided: a column of two planes, any count (blocks of four and the rest).
+        let count = (rng.next() % 20) as usize;
+        let (sstride, dstride) = (1 + (rng.next() % 9) as usize, 1 + (rng.next() % 7) as usize);
+        let mut dst = [0u32; 512];
+        let (pa, pb) = (&bytes[..200], &bytes[250..450]);
+        epssn::dsp::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
+        runs += 1;
+        let column = (0..count).all(|j| {
+            dst[j * dstride] == pack(pa[j * sstride] as i16 + oa, pb[j * sstride] as i16 + ob)
+        });
+        let untouched = (0..512).all(|i| i % dstride == 0 && i / dstride < count || dst[i] == 0);
+        if !(column && untouched) {
+            bad += 1;
+        }
         // requant_row_s8 with each of ReLU and the skip table.
         let mut acc = [0i32; 70];
         for a in acc.iter_mut() {
@@ -505,6 +519,13 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if !table_columns_agree(rng, &bytes) {
             bad += 1;
         }
+        #[cfg(feature = "mve")]
+        {
+            runs += 1;
+            if !line_fill_agrees(rng, &bytes) {
+                bad += 1;
+            }
+        }
         // exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
         let mut exp = [0u16; 256];
         for e in exp.iter_mut() {
@@ -528,6 +549,62 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         }
     }
     (runs, bad)
+}
+
+/// `mve::pack_line_quads` (a line fill of up to 16 words) against `pack_rows` word by word:
+/// random rows (some the zero row without offset), lengths a multiple of 4, line widths and
+/// fills shorter than the capacity; a row shorter than the fill's length is refused.
+#[cfg(feature = "mve")]
+fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::dsp::pack_rows;
+    use epssn::mve::{pack_line_quads, LineRows};
+    static ZEROS: [i8; 64] = [0; 64];
+    let len = 4 * (1 + (rng.next() % 12) as usize);
+    let words = 1 + (rng.next() % 16) as usize;
+    let vw = words + (rng.next() % 3) as usize;
+    let mut rows = LineRows::new(len);
+    let mut want = [0u32; 1024];
+    let mut got = [0u32; 1024];
+    let mut picked: [(usize, i16); 32] = [(0, 0); 32];
+    for p in picked[..2 * words].iter_mut() {
+        *p = if rng.next().is_multiple_of(5) {
+            (usize::MAX, 0)
+        } else {
+            (
+                (rng.next() as usize) % (512 - len),
+                if rng.next().is_multiple_of(2) {
+                    128
+                } else {
+                    -3
+                },
+            )
+        };
+    }
+    let row = |(at, off): (usize, i16)| -> (&[i8], i16) {
+        if at == usize::MAX {
+            (&ZEROS[..len], 0)
+        } else {
+            (&bytes[at..at + len], off)
+        }
+    };
+    let ok = rows.fill_with(2 * words, {
+        let mut i = 0;
+        move || {
+            i += 1;
+            row(picked[i - 1])
+        }
+    });
+    if !ok || rows.push(&bytes[..len - 1], 0) {
+        return false;
+    }
+    if !pack_line_quads(&mut got[..len * vw], vw, &rows) {
+        return false;
+    }
+    for k in 0..words {
+        let ((ra, oa), (rb, ob)) = (row(picked[2 * k]), row(picked[2 * k + 1]));
+        pack_rows(&mut want[k..len * vw], vw, ra, rb, oa, ob);
+    }
+    got == want
 }
 
 /// `dsp::table_columns4` (four cost-volume columns of two views in one pass) against the

@@ -459,6 +459,266 @@ fn fill(
     }
 }
 
+/// With Helium, the input rows one line reads, as a description rather than a closure, so
+/// that a plain loop names them ([`TapCursor`]): entry `v = (i, a, b)` (`b` fastest; channel
+/// `i < channels`, plane tap `a < na`, row tap `b < nb`) reads the input row at offset `i ·
+/// cs + origin + a · da + b · db` when `a` is in `a_ok` and `b` in `b_ok`, and zeros
+/// otherwise (padding); entries from `channels · na · nb` on are zeros too (the line's
+/// multiple of 4). Offsets wrap (the transposed engine's taps step backwards); only those of
+/// taps inside the input are used. The same entries as the closures of [`conv`] and
+/// [`transposed`] (a test compares them).
+#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+#[derive(Clone, Copy)]
+struct LineTaps {
+    channels: usize,
+    cs: usize,
+    na: usize,
+    nb: usize,
+    origin: usize,
+    da: usize,
+    db: usize,
+    a_ok: (usize, usize),
+    b_ok: (usize, usize),
+}
+
+#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+impl LineTaps {
+    /// The taps of a forward convolution's output row `(z, y)`: input plane `z·sd + a − pd`
+    /// and row `y·sh + b − ph`.
+    #[inline(always)]
+    fn forward(shape: &ConvShape, z: usize, y: usize) -> Self {
+        let [id, ih, iw] = shape.in_size;
+        let [kd, kh, _] = shape.kernel;
+        let [sd, sh, _] = shape.stride;
+        let [pd, ph, _] = shape.padding;
+        let (z0, y0) = (z * sd, y * sh);
+        LineTaps {
+            channels: shape.in_channels,
+            cs: id * ih * iw,
+            na: kd,
+            nb: kh,
+            origin: z0
+                .wrapping_sub(pd)
+                .wrapping_mul(ih * iw)
+                .wrapping_add(y0.wrapping_sub(ph).wrapping_mul(iw)),
+            da: ih * iw,
+            db: iw,
+            a_ok: (pd.saturating_sub(z0), (id + pd).saturating_sub(z0).min(kd)),
+            b_ok: (ph.saturating_sub(y0), (ih + ph).saturating_sub(y0).min(kh)),
+        }
+    }
+
+    /// The taps of a transposed convolution's phase row that reads input plane `bz − a` and
+    /// row `by − b` (`tz` plane and `ty` row taps).
+    #[inline(always)]
+    fn transposed(shape: &ConvShape, (bz, by): (usize, usize), (tz, ty): (usize, usize)) -> Self {
+        let [id, ih, iw] = shape.in_size;
+        LineTaps {
+            channels: shape.in_channels,
+            cs: id * ih * iw,
+            na: tz,
+            nb: ty,
+            origin: bz * ih * iw + by * iw,
+            da: (ih * iw).wrapping_neg(),
+            db: iw.wrapping_neg(),
+            a_ok: ((bz + 1).saturating_sub(id), (bz + 1).min(tz)),
+            b_ok: ((by + 1).saturating_sub(ih), (by + 1).min(ty)),
+        }
+    }
+}
+
+/// The entries of [`LineTaps`] in order, counted up without multiplications.
+#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+struct TapCursor {
+    taps: LineTaps,
+    v_len: usize,
+    v: usize,
+    a: usize,
+    b: usize,
+    /// Offsets of the next entry, of its (i, a, 0) and of its (i, 0, 0).
+    at: usize,
+    plane: usize,
+    channel: usize,
+    /// Whether plane tap `a` is inside the input.
+    a_in: bool,
+}
+
+#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+impl TapCursor {
+    fn new(taps: LineTaps) -> Self {
+        TapCursor {
+            taps,
+            v_len: taps.channels * taps.na * taps.nb,
+            v: 0,
+            a: 0,
+            b: 0,
+            at: taps.origin,
+            plane: taps.origin,
+            channel: taps.origin,
+            a_in: taps.a_ok.0 == 0 && taps.a_ok.1 > 0,
+        }
+    }
+
+    /// The input offset of the next entry's row, `None` for zeros.
+    #[inline(always)]
+    fn next_row(&mut self) -> Option<usize> {
+        let t = &self.taps;
+        let inside = self.v < self.v_len && self.a_in && self.b >= t.b_ok.0 && self.b < t.b_ok.1;
+        let row = inside.then_some(self.at);
+        self.v += 1;
+        self.b += 1;
+        self.at = self.at.wrapping_add(t.db);
+        if self.b == t.nb {
+            self.b = 0;
+            self.a += 1;
+            self.plane = self.plane.wrapping_add(t.da);
+            if self.a == t.na {
+                self.a = 0;
+                self.channel = self.channel.wrapping_add(t.cs);
+                self.plane = self.channel;
+            }
+            self.a_in = self.a >= t.a_ok.0 && self.a < t.a_ok.1;
+            self.at = self.plane;
+        }
+        row
+    }
+}
+
+/// [`fill`] with Helium: the same line, its rows named by `taps`, gathered 16 line words at a
+/// time by [`push_rows`] and packed by [`crate::mve::pack_line_quads`]. Rows whose length is
+/// not a multiple of 4, or more than [`MAX_ROW_TAPS`] taps per channel, go through [`fill`].
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+#[inline(always)]
+fn fill_taps(
+    line: &mut [u32],
+    vp: usize,
+    cols: usize,
+    span: (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    taps: LineTaps,
+) {
+    use crate::mve::LineRows;
+    let (lo, hi, in0) = span;
+    let vw = vp / 2;
+    let len = hi.saturating_sub(lo).min(MAX_ROW);
+    let per_channel = taps.na * taps.nb;
+    if len == 0 || !len.is_multiple_of(4) || per_channel > MAX_ROW_TAPS {
+        let mut cursor = TapCursor::new(taps);
+        fill(line, vp, cols, span, input, off, || cursor.next_row());
+        return;
+    }
+    let Some(words) = line.get_mut(..vw * cols) else {
+        return;
+    };
+    // The padding columns, as in `fill`.
+    let (head, tail) = (lo.min(cols), (lo + len).min(cols));
+    words[..head * vw].fill(0);
+    words[tail * vw..].fill(0);
+    // Channel 0's row of every tap (a, b), `usize::MAX` outside the input; channel i's is
+    // that plus i · cs.
+    let mut at = [usize::MAX; MAX_ROW_TAPS];
+    let mut cursor = TapCursor::new(LineTaps {
+        channels: 1,
+        ..taps
+    });
+    for slot in at[..per_channel].iter_mut() {
+        if let Some(o) = cursor.next_row() {
+            *slot = o;
+        }
+    }
+    let mut next = NextEntry {
+        v: 0,
+        t: 0,
+        channel: 0,
+    };
+    let v_len = taps.channels * per_channel;
+    let mut rows = LineRows::new(len);
+    let mut k0 = 0;
+    while k0 < vw {
+        let kn = (vw - k0).min(LineRows::CAPACITY / 2);
+        let entries = (&at[..per_channel], taps.cs, v_len);
+        if !push_rows(
+            &mut rows,
+            input,
+            entries,
+            (in0, len, off),
+            &mut next,
+            2 * kn,
+        ) {
+            return;
+        }
+        let Some(dst) = words.get_mut(lo * vw + k0..) else {
+            return;
+        };
+        if !crate::mve::pack_line_quads(dst, vw, &rows) {
+            return;
+        }
+        k0 += kn;
+    }
+}
+
+/// Most taps per channel (`na · nb`) [`fill_taps`] tabulates: 3 × 3 forward and 2 × 2
+/// transposed ones in the EPSSN layers.
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+const MAX_ROW_TAPS: usize = 32;
+
+/// Where [`push_rows`] goes on: entry `v`, tap `t` of channel offset `channel`.
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+struct NextEntry {
+    v: usize,
+    t: usize,
+    channel: usize,
+}
+
+/// The next `count` entries' rows into `rows`: entry `v = i · T + t` (`T = at.len()`) reads
+/// the row at `at[t] + i · cs` for `v < v_len` and a tap inside the input (`at[t] !=
+/// usize::MAX`), `len` entries from input column `in0` on with offset `off`; the others the
+/// zero row without offset. False if `rows` refused one. A loop of its own: inlined into the
+/// engines it ran out of registers.
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+#[inline(never)]
+fn push_rows<'a>(
+    rows: &mut crate::mve::LineRows<'a>,
+    input: &'a [i8],
+    (at, cs, v_len): (&[usize], usize, usize),
+    (in0, len, off): (usize, usize, i16),
+    next: &mut NextEntry,
+    count: usize,
+) -> bool {
+    let zeros = ZEROS.get(..len).unwrap_or(&[]);
+    let NextEntry {
+        mut v,
+        mut t,
+        mut channel,
+    } = *next;
+    let ok = rows.fill_with(count, || {
+        let tap = if v < v_len {
+            at.get(t).copied().unwrap_or(usize::MAX)
+        } else {
+            usize::MAX
+        };
+        let row = if tap == usize::MAX {
+            None
+        } else {
+            let b = tap + channel + in0;
+            input.get(b..b + len)
+        };
+        v += 1;
+        t += 1;
+        if t == at.len() {
+            t = 0;
+            channel += cs;
+        }
+        match row {
+            Some(r) => (r, off),
+            None => (zeros, 0),
+        }
+    });
+    *next = NextEntry { v, t, channel };
+    ok
+}
+
 /// Line words of a row of `cols` columns of `vp` entries (two i16 per word). This and the
 /// helpers below are the fit formulas, shared by the run-time fit checks and the const
 /// [`LINE_WORDS`]; the checks evaluate them in the order they always had (`vp` and the
@@ -525,6 +785,9 @@ pub(crate) fn conv<R: Apply>(
     let [kd, kh, kw] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, pw] = shape.padding;
+    // With Helium the rows come from `LineTaps`, which reads these from the shape itself.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    let _ = (id, ih, sd, sh, pd, ph);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let v_len = ic * kd * kh;
     let vp = up4(v_len);
@@ -569,27 +832,40 @@ pub(crate) fn conv<R: Apply>(
         pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
-                // v = (i, kz, ky), counted up without divisions.
-                let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
-                fill(line, vp, cols, span, input, off, || {
-                    let (vi, ii, zi, yi) = (v, i, kz, ky);
-                    v += 1;
-                    ky += 1;
-                    if ky == kh {
-                        ky = 0;
-                        kz += 1;
-                        if kz == kd {
-                            kz = 0;
-                            i += 1;
+                #[cfg(all(feature = "mve", target_arch = "arm"))]
+                fill_taps(
+                    line,
+                    vp,
+                    cols,
+                    span,
+                    input,
+                    off,
+                    LineTaps::forward(shape, z, y),
+                );
+                #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+                {
+                    // v = (i, kz, ky), counted up without divisions.
+                    let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
+                    fill(line, vp, cols, span, input, off, || {
+                        let (vi, ii, zi, yi) = (v, i, kz, ky);
+                        v += 1;
+                        ky += 1;
+                        if ky == kh {
+                            ky = 0;
+                            kz += 1;
+                            if kz == kd {
+                                kz = 0;
+                                i += 1;
+                            }
                         }
-                    }
-                    if vi >= v_len {
-                        return None;
-                    }
-                    let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
-                    let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
-                    Some(((ii * id + iz) * ih + iy) * iw)
-                });
+                        if vi >= v_len {
+                            return None;
+                        }
+                        let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+                        let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+                        Some(((ii * id + iz) * ih + iy) * iw)
+                    });
+                }
                 row(
                     line,
                     rin,
@@ -854,6 +1130,9 @@ pub(crate) fn transposed<R: Apply>(
     let [kd, kh, kw] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, _] = shape.padding;
+    // With Helium the rows come from `LineTaps`, which reads these from the shape itself.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    let _ = (id, ih);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let out_plane = od * oh * ow;
     let off = params.input_offset as i16;
@@ -915,27 +1194,35 @@ pub(crate) fn transposed<R: Apply>(
                 for qy in 0..ny {
                     let y = y0 + qy * sh;
                     let by = (y + ph) / sh;
-                    // v = (i, a, b), counted up without divisions.
-                    let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
-                    fill(line, vp, cols, span, input, off, || {
-                        let (vi, ii, ai, bi) = (v, i, a, b);
-                        v += 1;
-                        b += 1;
-                        if b == ty {
-                            b = 0;
-                            a += 1;
-                            if a == tz {
-                                a = 0;
-                                i += 1;
+                    #[cfg(all(feature = "mve", target_arch = "arm"))]
+                    {
+                        let taps = LineTaps::transposed(shape, (bz, by), (tz, ty));
+                        fill_taps(line, vp, cols, span, input, off, taps);
+                    }
+                    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+                    {
+                        // v = (i, a, b), counted up without divisions.
+                        let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
+                        fill(line, vp, cols, span, input, off, || {
+                            let (vi, ii, ai, bi) = (v, i, a, b);
+                            v += 1;
+                            b += 1;
+                            if b == ty {
+                                b = 0;
+                                a += 1;
+                                if a == tz {
+                                    a = 0;
+                                    i += 1;
+                                }
                             }
-                        }
-                        if vi >= v_len {
-                            return None;
-                        }
-                        let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
-                        let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
-                        Some(((ii * id + iz) * ih + iy) * iw)
-                    });
+                            if vi >= v_len {
+                                return None;
+                            }
+                            let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
+                            let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
+                            Some(((ii * id + iz) * ih + iy) * iw)
+                        });
+                    }
                     // Every x phase's dot products into one row of accumulators per
                     // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
                     // over the whole output row.
@@ -1237,5 +1524,80 @@ mod tests {
         let d1 = conv_line_words(&ConvShape::of(&config::LAYER_D1));
         assert_eq!(need, d1);
         assert_eq!(LINE_WORDS, d1.div_ceil(1024) * 1024);
+    }
+
+    /// The entries the forward engine's closure names for output row (z, y).
+    fn forward_entries(
+        shape: &ConvShape,
+        z: usize,
+        y: usize,
+        vp: usize,
+    ) -> std::vec::Vec<Option<usize>> {
+        let [id, ih, iw] = shape.in_size;
+        let [kd, kh, _] = shape.kernel;
+        let [sd, sh, _] = shape.stride;
+        let [pd, ph, _] = shape.padding;
+        let v_len = shape.in_channels * kd * kh;
+        (0..vp)
+            .map(|v| {
+                if v >= v_len {
+                    return None;
+                }
+                let (i, zi, yi) = (v / (kd * kh), v / kh % kd, v % kh);
+                let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+                let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+                Some(((i * id + iz) * ih + iy) * iw)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn tap_cursor_names_the_engines_rows() {
+        use super::super::testutil::Rng;
+        let mut rng = Rng(0x5eed_cafe);
+        for case in 0..400 {
+            let dims = [1 + rng.below(6), 1 + rng.below(6), 1 + rng.below(6)];
+            let shape = ConvShape {
+                in_channels: 1 + rng.below(5),
+                out_channels: 1,
+                kernel: [1 + rng.below(4), 1 + rng.below(4), 1],
+                stride: [1 + rng.below(3), 1 + rng.below(3), 1],
+                padding: [rng.below(3), rng.below(3), 0],
+                output_padding: [0; 3],
+                in_size: dims,
+                out_size: [8, 8, 1],
+            };
+            let [kd, kh, _] = shape.kernel;
+            let v_len = shape.in_channels * kd * kh;
+            let vp = up4(v_len);
+            let (z, y) = (rng.below(8), rng.below(8));
+            let mut cursor = TapCursor::new(LineTaps::forward(&shape, z, y));
+            let got: std::vec::Vec<_> = (0..vp).map(|_| cursor.next_row()).collect();
+            assert_eq!(
+                got,
+                forward_entries(&shape, z, y, vp),
+                "forward case {case}"
+            );
+            // The transposed engine's closure: plane bz − a, row by − b.
+            let [id, ih, iw] = shape.in_size;
+            let (tz, ty) = (1 + rng.below(3), 1 + rng.below(3));
+            let (bz, by) = (rng.below(id + 3), rng.below(ih + 3));
+            let v_len = shape.in_channels * tz * ty;
+            let vp = up4(v_len);
+            let want: std::vec::Vec<_> = (0..vp)
+                .map(|v| {
+                    if v >= v_len {
+                        return None;
+                    }
+                    let (i, a, b) = (v / (tz * ty), v / ty % tz, v % ty);
+                    let iz = bz.checked_sub(a).filter(|&c| c < id)?;
+                    let iy = by.checked_sub(b).filter(|&c| c < ih)?;
+                    Some(((i * id + iz) * ih + iy) * iw)
+                })
+                .collect();
+            let mut cursor = TapCursor::new(LineTaps::transposed(&shape, (bz, by), (tz, ty)));
+            let got: std::vec::Vec<_> = (0..vp).map(|_| cursor.next_row()).collect();
+            assert_eq!(got, want, "transposed case {case}");
+        }
     }
 }
