@@ -283,6 +283,137 @@ impl<'a> LineRows<'a> {
     }
 }
 
+/// The rows of a whole line as the line engines name them: entry `v = i · T + t` (channel
+/// `i < channels`, tap `t < T`) reads `need` bytes of `input` from `at[t] + i · cs` when
+/// tap `t` is inside the input (`at[t] != usize::MAX`), the zero row without offset
+/// otherwise; after the `channels · T` entries, zero rows up to `entries`. Built once per
+/// line ([`ChannelTaps::new`] checks every channel's row against `input`), it hands the rows
+/// out in order, a chunk at a time ([`ChannelTaps::next_rows`]), at about 7 instructions
+/// per row: each tap's row for the next channel is its row plus `cs`.
+pub struct ChannelTaps<'a> {
+    /// The next channel's row of each tap, and the address step to the channel after.
+    row: [LineRow; ChannelTaps::MAX_TAPS],
+    step: [usize; ChannelTaps::MAX_TAPS],
+    taps: usize,
+    channels: usize,
+    need: usize,
+    /// Zero rows after the channels.
+    pad: usize,
+    /// Where the next row is: channel, tap, zero rows handed out.
+    channel: usize,
+    tap: usize,
+    padded: usize,
+    _rows: core::marker::PhantomData<&'a [i8]>,
+}
+
+/// The zero row of padding entries (rows of at most 256 entries).
+static ZERO_ROW: [i8; 256] = [0; 256];
+
+impl<'a> ChannelTaps<'a> {
+    /// Most taps per channel (3 × 3 in the EPSSN layers).
+    pub const MAX_TAPS: usize = 16;
+
+    /// The rows of one line (see the type), entries of channel rows offset by `off`; `None`
+    /// when more than [`ChannelTaps::MAX_TAPS`] taps, `need` over 256, `entries` under
+    /// `channels · T`, or a row of a tap inside the input not wholly in `input`.
+    #[inline(always)]
+    pub fn new(
+        input: &'a [i8],
+        at: &[usize],
+        (channels, cs): (usize, usize),
+        (need, off): (usize, i16),
+        entries: usize,
+    ) -> Option<Self> {
+        let taps = at.len();
+        let pad = entries.checked_sub(channels.checked_mul(taps)?)?;
+        if taps > Self::MAX_TAPS || need > ZERO_ROW.len() {
+            return None;
+        }
+        let zero = LineRow {
+            ptr: ZERO_ROW.as_ptr(),
+            off: 0,
+        };
+        let mut row = [zero; Self::MAX_TAPS];
+        let mut step = [0; Self::MAX_TAPS];
+        let last = channels.saturating_sub(1).checked_mul(cs)?;
+        for ((r, s), &a) in row.iter_mut().zip(step.iter_mut()).zip(at) {
+            if a == usize::MAX {
+                continue;
+            }
+            // Every channel's row lies in `input`: the last channel's ends within it.
+            let end = a.checked_add(last)?.checked_add(need)?;
+            if end > input.len() {
+                return None;
+            }
+            *r = LineRow {
+                ptr: input.as_ptr().wrapping_add(a),
+                off: off as i32,
+            };
+            *s = cs;
+        }
+        Some(ChannelTaps {
+            row,
+            step,
+            taps,
+            channels,
+            need,
+            pad,
+            channel: 0,
+            tap: 0,
+            padded: 0,
+            _rows: core::marker::PhantomData,
+        })
+    }
+
+    /// Replaces `rows` with the next `count` rows (at most [`LineRows::CAPACITY`], and no more
+    /// than are left); false, leaving `rows` empty, otherwise or when `rows` wants longer
+    /// rows than these.
+    #[inline(never)]
+    pub fn next_rows(&mut self, rows: &mut LineRows<'a>, count: usize) -> bool {
+        rows.len = 0;
+        if count > LineRows::CAPACITY || rows.need > self.need {
+            return false;
+        }
+        let mut n = 0;
+        while n < count && self.channel < self.channels && self.taps > 0 {
+            let k = (self.taps - self.tap).min(count - n);
+            let (t0, t1) = (self.tap, self.tap + k);
+            for ((slot, r), &s) in rows.rows[n..n + k]
+                .iter_mut()
+                .zip(&mut self.row[t0..t1])
+                .zip(&self.step[t0..t1])
+            {
+                slot.write(*r);
+                // The next channel's row (never formed past the last channel's: the address
+                // is only used for channels < channels, checked in `new`).
+                r.ptr = r.ptr.wrapping_add(s);
+            }
+            n += k;
+            self.tap = t1;
+            if self.tap == self.taps {
+                self.tap = 0;
+                self.channel += 1;
+            }
+        }
+        if n < count {
+            let k = count - n;
+            if self.padded + k > self.pad {
+                return false;
+            }
+            let zero = LineRow {
+                ptr: ZERO_ROW.as_ptr(),
+                off: 0,
+            };
+            for slot in &mut rows.rows[n..count] {
+                slot.write(zero);
+            }
+            self.padded += k;
+        }
+        rows.len = count;
+        true
+    }
+}
+
 /// A whole line fill with Helium (the line engine's, `kernels::line`): for each pair `k` of
 /// `rows` (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw]
 /// = pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what

@@ -584,11 +584,12 @@ impl TapCursor {
     }
 }
 
-/// [`fill`] with Helium: the same line, its rows named by `taps`, gathered 16 line words at a
-/// time by [`push_rows`] and packed by [`crate::mve::pack_line_quads`]. Rows whose length is
+/// [`fill`] with Helium: the same line, its rows named by `taps`, handed out 16 line words at
+/// a time by [`crate::mve::ChannelTaps`] and packed by [`crate::mve::pack_line_quads`]. One
+/// copy for every engine and layer (flash), called once per line. Rows whose length is
 /// not a multiple of 4, or more than [`MAX_ROW_TAPS`] taps per channel, go through [`fill`].
 #[cfg(all(feature = "mve", target_arch = "arm"))]
-#[inline(always)]
+#[inline(never)]
 fn fill_taps(
     line: &mut [u32],
     vp: usize,
@@ -598,7 +599,7 @@ fn fill_taps(
     off: i16,
     taps: LineTaps,
 ) {
-    use crate::mve::LineRows;
+    use crate::mve::{ChannelTaps, LineRows};
     let (lo, hi, in0) = span;
     let vw = vp / 2;
     let len = hi.saturating_sub(lo).min(MAX_ROW);
@@ -615,8 +616,8 @@ fn fill_taps(
     let (head, tail) = (lo.min(cols), (lo + len).min(cols));
     words[..head * vw].fill(0);
     words[tail * vw..].fill(0);
-    // Channel 0's row of every tap (a, b), `usize::MAX` outside the input; channel i's is
-    // that plus i · cs.
+    // Channel 0's row of every tap (a, b) from column in0 on, `usize::MAX` outside the
+    // input; channel i's is that plus i · cs.
     let mut at = [usize::MAX; MAX_ROW_TAPS];
     let mut cursor = TapCursor::new(LineTaps {
         channels: 1,
@@ -624,28 +625,19 @@ fn fill_taps(
     });
     for slot in at[..per_channel].iter_mut() {
         if let Some(o) = cursor.next_row() {
-            *slot = o;
+            *slot = o + in0;
         }
     }
-    let mut next = NextEntry {
-        v: 0,
-        t: 0,
-        channel: 0,
+    let chans = (taps.channels, taps.cs);
+    let Some(mut entries) = ChannelTaps::new(input, &at[..per_channel], chans, (len, off), vp)
+    else {
+        return;
     };
-    let v_len = taps.channels * per_channel;
     let mut rows = LineRows::new(len);
     let mut k0 = 0;
     while k0 < vw {
         let kn = (vw - k0).min(LineRows::CAPACITY / 2);
-        let entries = (&at[..per_channel], taps.cs, v_len);
-        if !push_rows(
-            &mut rows,
-            input,
-            entries,
-            (in0, len, off),
-            &mut next,
-            2 * kn,
-        ) {
+        if !entries.next_rows(&mut rows, 2 * kn) {
             return;
         }
         let Some(dst) = words.get_mut(lo * vw + k0..) else {
@@ -661,63 +653,7 @@ fn fill_taps(
 /// Most taps per channel (`na · nb`) [`fill_taps`] tabulates: 3 × 3 forward and 2 × 2
 /// transposed ones in the EPSSN layers.
 #[cfg(all(feature = "mve", target_arch = "arm"))]
-const MAX_ROW_TAPS: usize = 32;
-
-/// Where [`push_rows`] goes on: entry `v`, tap `t` of channel offset `channel`.
-#[cfg(all(feature = "mve", target_arch = "arm"))]
-struct NextEntry {
-    v: usize,
-    t: usize,
-    channel: usize,
-}
-
-/// The next `count` entries' rows into `rows`: entry `v = i · T + t` (`T = at.len()`) reads
-/// the row at `at[t] + i · cs` for `v < v_len` and a tap inside the input (`at[t] !=
-/// usize::MAX`), `len` entries from input column `in0` on with offset `off`; the others the
-/// zero row without offset. False if `rows` refused one. A loop of its own: inlined into the
-/// engines it ran out of registers.
-#[cfg(all(feature = "mve", target_arch = "arm"))]
-#[inline(never)]
-fn push_rows<'a>(
-    rows: &mut crate::mve::LineRows<'a>,
-    input: &'a [i8],
-    (at, cs, v_len): (&[usize], usize, usize),
-    (in0, len, off): (usize, usize, i16),
-    next: &mut NextEntry,
-    count: usize,
-) -> bool {
-    let zeros = ZEROS.get(..len).unwrap_or(&[]);
-    let NextEntry {
-        mut v,
-        mut t,
-        mut channel,
-    } = *next;
-    let ok = rows.fill_with(count, || {
-        let tap = if v < v_len {
-            at.get(t).copied().unwrap_or(usize::MAX)
-        } else {
-            usize::MAX
-        };
-        let row = if tap == usize::MAX {
-            None
-        } else {
-            let b = tap + channel + in0;
-            input.get(b..b + len)
-        };
-        v += 1;
-        t += 1;
-        if t == at.len() {
-            t = 0;
-            channel += cs;
-        }
-        match row {
-            Some(r) => (r, off),
-            None => (zeros, 0),
-        }
-    });
-    *next = NextEntry { v, t, channel };
-    ok
-}
+const MAX_ROW_TAPS: usize = crate::mve::ChannelTaps::MAX_TAPS;
 
 /// Line words of a row of `cols` columns of `vp` entries (two i16 per word). This and the
 /// helpers below are the fit formulas, shared by the run-time fit checks and the const
