@@ -313,9 +313,11 @@ impl<'a> ChannelTaps<'a> {
     /// Most taps per channel (3 × 3 in the EPSSN layers).
     pub const MAX_TAPS: usize = 16;
 
-    /// The rows of one line (see the type), entries of channel rows offset by `off`; `None`
-    /// when more than [`ChannelTaps::MAX_TAPS`] taps, `need` over 256, `entries` under
-    /// `channels · T`, or a row of a tap inside the input not wholly in `input`.
+    /// The rows of one line (see the type), entries of channel rows offset by `off`; none at
+    /// all ([`ChannelTaps::next_rows`] refuses every call) when more than
+    /// [`ChannelTaps::MAX_TAPS`] taps, `need` over 256, `entries` under `channels · T`, or a
+    /// row of a tap inside the input not wholly in `input`. Returned by value, not in an
+    /// `Option`: inlined, it is built in place instead of copied out.
     #[inline(always)]
     pub fn new(
         input: &'a [i8],
@@ -323,27 +325,40 @@ impl<'a> ChannelTaps<'a> {
         (channels, cs): (usize, usize),
         (need, off): (usize, i16),
         entries: usize,
-    ) -> Option<Self> {
-        let taps = at.len();
-        let pad = entries.checked_sub(channels.checked_mul(taps)?)?;
-        if taps > Self::MAX_TAPS || need > ZERO_ROW.len() {
-            return None;
-        }
+    ) -> Self {
         let zero = LineRow {
             ptr: ZERO_ROW.as_ptr(),
             off: 0,
         };
-        let mut row = [zero; Self::MAX_TAPS];
-        let mut step = [0; Self::MAX_TAPS];
-        let last = channels.saturating_sub(1).checked_mul(cs)?;
-        for ((r, s), &a) in row.iter_mut().zip(step.iter_mut()).zip(at) {
+        let mut taps = ChannelTaps {
+            row: [zero; Self::MAX_TAPS],
+            step: [0; Self::MAX_TAPS],
+            taps: at.len(),
+            channels,
+            need,
+            pad: 0,
+            channel: 0,
+            tap: 0,
+            padded: 0,
+            _rows: core::marker::PhantomData,
+        };
+        let last = channels.saturating_sub(1).checked_mul(cs);
+        let pad = channels
+            .checked_mul(at.len())
+            .and_then(|n| entries.checked_sub(n));
+        let fits = at.len() <= Self::MAX_TAPS && need <= ZERO_ROW.len();
+        let (Some(last), Some(pad), true) = (last, pad, fits) else {
+            return taps.refused();
+        };
+        taps.pad = pad;
+        for ((r, s), &a) in taps.row.iter_mut().zip(taps.step.iter_mut()).zip(at) {
             if a == usize::MAX {
                 continue;
             }
             // Every channel's row lies in `input`: the last channel's ends within it.
-            let end = a.checked_add(last)?.checked_add(need)?;
-            if end > input.len() {
-                return None;
+            let end = a.checked_add(last).and_then(|e| e.checked_add(need));
+            if end.is_none_or(|e| e > input.len()) {
+                return taps.refused();
             }
             *r = LineRow {
                 ptr: input.as_ptr().wrapping_add(a),
@@ -351,27 +366,25 @@ impl<'a> ChannelTaps<'a> {
             };
             *s = cs;
         }
-        Some(ChannelTaps {
-            row,
-            step,
-            taps,
-            channels,
-            need,
-            pad,
-            channel: 0,
-            tap: 0,
-            padded: 0,
-            _rows: core::marker::PhantomData,
-        })
+        taps
+    }
+
+    /// No rows: every [`ChannelTaps::next_rows`] call refuses.
+    #[inline(always)]
+    fn refused(mut self) -> Self {
+        self.taps = 0;
+        self.channels = 0;
+        self.pad = 0;
+        self
     }
 
     /// Replaces `rows` with the next `count` rows (at most [`LineRows::CAPACITY`], and no more
     /// than are left); false, leaving `rows` empty, otherwise or when `rows` wants longer
-    /// rows than these.
+    /// rows than these (`count` 0 of a refused line is refused too).
     #[inline(never)]
     pub fn next_rows(&mut self, rows: &mut LineRows<'a>, count: usize) -> bool {
         rows.len = 0;
-        if count > LineRows::CAPACITY || rows.need > self.need {
+        if count > LineRows::CAPACITY || rows.need > self.need || self.channels == 0 {
             return false;
         }
         let mut n = 0;

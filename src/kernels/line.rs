@@ -629,10 +629,7 @@ fn fill_taps(
         }
     }
     let chans = (taps.channels, taps.cs);
-    let Some(mut entries) = ChannelTaps::new(input, &at[..per_channel], chans, (len, off), vp)
-    else {
-        return;
-    };
+    let mut entries = ChannelTaps::new(input, &at[..per_channel], chans, (len, off), vp);
     let mut rows = LineRows::new(len);
     let mut k0 = 0;
     while k0 < vw {
