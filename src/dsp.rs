@@ -217,6 +217,17 @@ pub fn dot2x2_row(
     bias: [i32; 2],
     (acc0, acc1, astep): (&mut [i32], &mut [i32], usize),
 ) -> bool {
+    // With Helium and an even number of positions: the pair loop checks exactly the slices
+    // checked below (and refuses what they refuse), so it runs first, checked once.
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    if positions.is_multiple_of(2)
+        && positions > 0
+        && n.is_multiple_of(2)
+        && n >= 4
+        && crate::mve::dot2x2_row_pairs(x, (step, n), positions / 2, w, bias, (acc0, acc1, astep))
+    {
+        return true;
+    }
     let last = match positions.checked_sub(1) {
         None => return true,
         Some(l) => l,
