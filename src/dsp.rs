@@ -1189,6 +1189,348 @@ pub fn pack_rows(dst: &mut [u32], stride: usize, a: &[i8], b: &[i8], oa: i16, ob
     }
 }
 
+/// The line engine's whole-line fills on ARM (`dsp`, and with `mve` Helium): the rows of a
+/// line as a table the assembly reads, and the fill itself.
+#[cfg(all(feature = "dsp", target_arch = "arm"))]
+mod line_rows {
+    /// One input row of a line fill and the offset its entries get, as [`pack_line_quads`]
+    /// reads them: the row's address and the offset widened to a word.
+    #[repr(C)]
+    #[derive(Clone, Copy)]
+    pub(crate) struct LineRow {
+        ptr: *const i8,
+        off: i32,
+    }
+
+    /// Up to [`LineRows::CAPACITY`] input rows of one line fill, in line-entry order (entries
+    /// `2k` and `2k + 1` fill line word `k` of every column), every one at least `need` bytes
+    /// long: [`LineRows::push`] refuses a shorter row, so [`pack_line_quads`] may read `need`
+    /// bytes of each.
+    pub struct LineRows<'a> {
+        /// `rows[..len]` are written (the rest is never read: no clearing per fill).
+        pub(crate) rows: [core::mem::MaybeUninit<LineRow>; LineRows::CAPACITY],
+        pub(crate) len: usize,
+        pub(crate) need: usize,
+        _rows: core::marker::PhantomData<&'a [i8]>,
+    }
+
+    impl<'a> LineRows<'a> {
+        /// Rows one call takes (16 line words: 256 bytes of stack).
+        pub const CAPACITY: usize = 32;
+
+        /// No rows yet; every row must hold `need` entries.
+        #[inline(always)]
+        pub fn new(need: usize) -> Self {
+            LineRows {
+                rows: [const { core::mem::MaybeUninit::uninit() }; LineRows::CAPACITY],
+                len: 0,
+                need,
+                _rows: core::marker::PhantomData,
+            }
+        }
+
+        /// Forgets the rows (the next call's rows follow).
+        #[inline(always)]
+        pub fn clear(&mut self) {
+            self.len = 0;
+        }
+
+        /// Replaces the rows with `count` rows from `next` (each row and the offset its entries
+        /// get); false, keeping those before it, at the first row shorter than `need` or when
+        /// `count` exceeds [`LineRows::CAPACITY`].
+        #[inline(always)]
+        pub fn fill_with(
+            &mut self,
+            count: usize,
+            mut next: impl FnMut() -> (&'a [i8], i16),
+        ) -> bool {
+            // The count stays in a register: stores into `rows` cannot reach it.
+            let mut len = 0;
+            let mut ok = count <= LineRows::CAPACITY;
+            for slot in self.rows.iter_mut().take(count) {
+                let (row, off) = next();
+                if row.len() < self.need {
+                    ok = false;
+                    break;
+                }
+                slot.write(LineRow {
+                    ptr: row.as_ptr(),
+                    off: off as i32,
+                });
+                len += 1;
+            }
+            self.len = len;
+            ok
+        }
+
+        /// Appends `row`, whose entries get `off`; false, appending nothing, when it is full or
+        /// `row` is shorter than `need`.
+        #[inline(always)]
+        pub fn push(&mut self, row: &'a [i8], off: i16) -> bool {
+            if row.len() < self.need {
+                return false;
+            }
+            let Some(slot) = self.rows.get_mut(self.len) else {
+                return false;
+            };
+            slot.write(LineRow {
+                ptr: row.as_ptr(),
+                off: off as i32,
+            });
+            self.len += 1;
+            true
+        }
+    }
+
+    /// The rows of a whole line as the line engines name them: entry `v = i · T + t` (channel
+    /// `i < channels`, tap `t < T`) reads `need` bytes of `input` from `at[t] + i · cs` when
+    /// tap `t` is inside the input (`at[t] != usize::MAX`), the zero row without offset
+    /// otherwise; after the `channels · T` entries, zero rows up to `entries`. Built once per
+    /// line ([`ChannelTaps::new`] checks every channel's row against `input`), it hands the rows
+    /// out in order, a chunk at a time ([`ChannelTaps::next_rows`]), at about 7 instructions
+    /// per row: each tap's row for the next channel is its row plus `cs`.
+    pub struct ChannelTaps<'a> {
+        /// The next channel's row of each tap, and the address step to the channel after.
+        row: [LineRow; ChannelTaps::MAX_TAPS],
+        step: [usize; ChannelTaps::MAX_TAPS],
+        taps: usize,
+        channels: usize,
+        need: usize,
+        /// Zero rows after the channels.
+        pad: usize,
+        /// Where the next row is: channel, tap, zero rows handed out.
+        channel: usize,
+        tap: usize,
+        padded: usize,
+        _rows: core::marker::PhantomData<&'a [i8]>,
+    }
+
+    /// The zero row of padding entries (rows of at most 256 entries).
+    static ZERO_ROW: [i8; 256] = [0; 256];
+
+    impl<'a> ChannelTaps<'a> {
+        /// Most taps per channel (3 × 3 in the EPSSN layers).
+        pub const MAX_TAPS: usize = 16;
+
+        /// The rows of one line (see the type), entries of channel rows offset by `off`; none at
+        /// all ([`ChannelTaps::next_rows`] refuses every call) when more than
+        /// [`ChannelTaps::MAX_TAPS`] taps, `need` over 256, `entries` under `channels · T`, or a
+        /// row of a tap inside the input not wholly in `input`. Returned by value, not in an
+        /// `Option`: inlined, it is built in place instead of copied out.
+        #[inline(always)]
+        pub fn new(
+            input: &'a [i8],
+            at: &[usize],
+            (channels, cs): (usize, usize),
+            (need, off): (usize, i16),
+            entries: usize,
+        ) -> Self {
+            let zero = LineRow {
+                ptr: ZERO_ROW.as_ptr(),
+                off: 0,
+            };
+            let mut taps = ChannelTaps {
+                row: [zero; Self::MAX_TAPS],
+                step: [0; Self::MAX_TAPS],
+                taps: at.len(),
+                channels,
+                need,
+                pad: 0,
+                channel: 0,
+                tap: 0,
+                padded: 0,
+                _rows: core::marker::PhantomData,
+            };
+            let last = channels.saturating_sub(1).checked_mul(cs);
+            let pad = channels
+                .checked_mul(at.len())
+                .and_then(|n| entries.checked_sub(n));
+            let fits = at.len() <= Self::MAX_TAPS && need <= ZERO_ROW.len();
+            let (Some(last), Some(pad), true) = (last, pad, fits) else {
+                return taps.refused();
+            };
+            taps.pad = pad;
+            for ((r, s), &a) in taps.row.iter_mut().zip(taps.step.iter_mut()).zip(at) {
+                if a == usize::MAX {
+                    continue;
+                }
+                // Every channel's row lies in `input`: the last channel's ends within it.
+                let end = a.checked_add(last).and_then(|e| e.checked_add(need));
+                if end.is_none_or(|e| e > input.len()) {
+                    return taps.refused();
+                }
+                *r = LineRow {
+                    ptr: input.as_ptr().wrapping_add(a),
+                    off: off as i32,
+                };
+                *s = cs;
+            }
+            taps
+        }
+
+        /// No rows: every [`ChannelTaps::next_rows`] call refuses.
+        #[inline(always)]
+        fn refused(mut self) -> Self {
+            self.taps = 0;
+            self.channels = 0;
+            self.pad = 0;
+            self
+        }
+
+        /// Replaces `rows` with the next `count` rows (at most [`LineRows::CAPACITY`], and no more
+        /// than are left); false, leaving `rows` empty, otherwise or when `rows` wants longer
+        /// rows than these (`count` 0 of a refused line is refused too).
+        #[inline(never)]
+        pub fn next_rows(&mut self, rows: &mut LineRows<'a>, count: usize) -> bool {
+            rows.len = 0;
+            if count > LineRows::CAPACITY || rows.need > self.need || self.channels == 0 {
+                return false;
+            }
+            let mut n = 0;
+            while n < count && self.channel < self.channels && self.taps > 0 {
+                let k = (self.taps - self.tap).min(count - n);
+                let (t0, t1) = (self.tap, self.tap + k);
+                for ((slot, r), &s) in rows.rows[n..n + k]
+                    .iter_mut()
+                    .zip(&mut self.row[t0..t1])
+                    .zip(&self.step[t0..t1])
+                {
+                    slot.write(*r);
+                    // The next channel's row (never formed past the last channel's: the address
+                    // is only used for channels < channels, checked in `new`).
+                    r.ptr = r.ptr.wrapping_add(s);
+                }
+                n += k;
+                self.tap = t1;
+                if self.tap == self.taps {
+                    self.tap = 0;
+                    self.channel += 1;
+                }
+            }
+            if n < count {
+                let k = count - n;
+                if self.padded + k > self.pad {
+                    return false;
+                }
+                let zero = LineRow {
+                    ptr: ZERO_ROW.as_ptr(),
+                    off: 0,
+                };
+                for slot in &mut rows.rows[n..count] {
+                    slot.write(zero);
+                }
+                self.padded += k;
+            }
+            rows.len = count;
+            true
+        }
+    }
+
+    /// A whole line fill (the line engine's, `kernels::line`): for each pair `k` of `rows`
+    /// (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw] =
+    /// pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what [`super::pack_rows`]
+    /// does for one word, for up to 16 words in one call. With Helium it is
+    /// `mve::pack_line_quads`; here the `SXTB16` loop of [`super::pack_rows`] (5.5 instructions per
+    /// entry) with the pair loop in assembly too (about 16 instructions per line word, where the
+    /// Rust loop around [`super::pack_rows`] spent about 100 choosing the rows and checking slices).
+    /// Returns false, doing nothing, for an odd number of rows, `need` not a positive multiple of
+    /// 4, or a `dst` too short.
+    pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &LineRows<'_>) -> bool {
+        #[cfg(feature = "mve")]
+        return crate::mve::pack_line_quads(dst, vw, rows);
+        #[cfg(not(feature = "mve"))]
+        {
+            let (pairs, need) = (rows.len / 2, rows.need);
+            if pairs == 0 {
+                return rows.len == 0;
+            }
+            let fits = rows.len.is_multiple_of(2)
+                && need >= 4
+                && need.is_multiple_of(4)
+                && vw <= usize::MAX / 16
+                && (need - 1)
+                    .checked_mul(vw)
+                    .and_then(|e| e.checked_add(pairs - 1))
+                    .is_some_and(|last| last < dst.len());
+            if !fits {
+                return false;
+            }
+            // SAFETY: pair k reads rows[2k] and rows[2k + 1] (k < pairs, 2·pairs = rows.len ≤
+            // CAPACITY, written; MaybeUninit<LineRow> has LineRow's layout), need bytes of each
+            // from its address by unaligned word loads, which ARMv7-M allows for LDR (every row
+            // holds at least need bytes, and the borrow 'a keeps them alive), and writes
+            // dst[k + j·vw] for j < need (the last index, checked above, is in bounds); need / 4
+            // ≥ 1 and pairs ≥ 1, so the inner loop runs need / 4 times per pair and the pair
+            // loop pairs times. The asm keeps its pair loop's state in a 16-byte frame it pushes
+            // and pops (the inner loop needs all twelve registers).
+            #[allow(unsafe_code)]
+            unsafe {
+                core::arch::asm!(
+                    "sub    sp, sp, #16",
+                    "str    r0, [sp, #0]",
+                    "str    r1, [sp, #4]",
+                    "str    r2, [sp, #8]",
+                    "str    r3, [sp, #12]",
+                    "2:",
+                    // The pair's rows and offsets; each offset to both halfwords for SADD16.
+                    "ldr    r4, [sp, #0]",
+                    "ldm    r4!, {{r5, r8, r12, lr}}",
+                    "str    r4, [sp, #0]",
+                    "pkhbt  r8, r8, r8, lsl #16",
+                    "pkhbt  lr, lr, lr, lsl #16",
+                    "ldr    r9, [sp, #4]",
+                    "add    r4, r9, #4",
+                    "str    r4, [sp, #4]",
+                    "ldr    r10, [sp, #12]",
+                    "3:",
+                    "ldr    r0, [r5], #4",
+                    "ldr    r1, [r12], #4",
+                    "sxtb16 r2, r0",
+                    "sxtb16 r0, r0, ror #8",
+                    "sxtb16 r3, r1",
+                    "sxtb16 r1, r1, ror #8",
+                    "sadd16 r2, r2, r8",
+                    "sadd16 r0, r0, r8",
+                    "sadd16 r3, r3, lr",
+                    "sadd16 r1, r1, lr",
+                    "pkhbt  r4, r2, r3, lsl #16",
+                    "str    r4, [r9]",
+                    "pkhbt  r4, r0, r1, lsl #16",
+                    "str    r4, [r9, r11]",
+                    "pkhtb  r4, r3, r2, asr #16",
+                    "str    r4, [r9, r11, lsl #1]",
+                    "add    r9, r9, r11, lsl #1",
+                    "pkhtb  r4, r1, r0, asr #16",
+                    "str    r4, [r9, r11]",
+                    "add    r9, r9, r11, lsl #1",
+                    "subs   r10, r10, #1",
+                    "bne    3b",
+                    "ldr    r4, [sp, #8]",
+                    "subs   r4, r4, #1",
+                    "str    r4, [sp, #8]",
+                    "bne    2b",
+                    "add    sp, sp, #16",
+                    inout("r0") rows.rows.as_ptr() => _,
+                    inout("r1") dst.as_mut_ptr() => _,
+                    inout("r2") pairs => _,
+                    inout("r3") need / 4 => _,
+                    out("r4") _,
+                    out("r5") _,
+                    out("r8") _,
+                    out("r9") _,
+                    out("r10") _,
+                    in("r11") vw * 4,
+                    out("r12") _,
+                    out("lr") _,
+                );
+            }
+            true
+        }
+    }
+}
+#[cfg(all(feature = "dsp", target_arch = "arm"))]
+pub use line_rows::{pack_line_quads, ChannelTaps, LineRows};
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, with Helium pack_line_quads and ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -519,12 +519,9 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if !table_columns_agree(rng, &bytes) {
             bad += 1;
         }
-        #[cfg(feature = "mve")]
-        {
-            runs += 2;
-            bad += u32::from(!line_fill_agrees(rng, &bytes));
-            bad += u32::from(!channel_taps_agree(rng, &bytes));
-        }
+        runs += 2;
+        bad += u32::from(!line_fill_agrees(rng, &bytes));
+        bad += u32::from(!channel_taps_agree(rng, &bytes));
         // exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
         let mut exp = [0u16; 256];
         for e in exp.iter_mut() {
@@ -550,13 +547,13 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
     (runs, bad)
 }
 
-/// `mve::pack_line_quads` (a line fill of up to 16 words) against `pack_rows` word by word:
+/// `dsp::pack_line_quads` (a line fill of up to 16 words; with `mve` its Helium loop) against
+/// `pack_rows` word by word:
 /// random rows (some the zero row without offset), lengths a multiple of 4, line widths and
 /// fills shorter than the capacity; a row shorter than the fill's length is refused.
-#[cfg(feature = "mve")]
 fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     use epssn::dsp::pack_rows;
-    use epssn::mve::{pack_line_quads, LineRows};
+    use epssn::dsp::{pack_line_quads, LineRows};
     static ZEROS: [i8; 64] = [0; 64];
     let len = 4 * (1 + (rng.next() % 12) as usize);
     let words = 1 + (rng.next() % 16) as usize;
@@ -606,13 +603,12 @@ fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     got == want
 }
 
-/// `mve::ChannelTaps` (a whole line's rows, channel by channel and tap by tap, then zero
+/// `dsp::ChannelTaps` (a whole line's rows, channel by channel and tap by tap, then zero
 /// rows) through `pack_line_quads`, chunk by chunk, against `pack_rows` on the rows the
 /// definition names; a tap whose last channel's row leaves the input is refused.
-#[cfg(feature = "mve")]
 fn channel_taps_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     use epssn::dsp::pack_rows;
-    use epssn::mve::{pack_line_quads, ChannelTaps, LineRows};
+    use epssn::dsp::{pack_line_quads, ChannelTaps, LineRows};
     static ZEROS: [i8; 16] = [0; 16];
     let len = 4 * (1 + (rng.next() % 4) as usize);
     let taps = 1 + (rng.next() % 9) as usize;

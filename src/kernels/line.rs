@@ -459,7 +459,7 @@ fn fill(
     }
 }
 
-/// With Helium, the input rows one line reads, as a description rather than a closure, so
+/// On ARM (`dsp`, `mve`), the input rows one line reads, as a description rather than a closure, so
 /// that a plain loop names them ([`TapCursor`]): entry `v = (i, a, b)` (`b` fastest; channel
 /// `i < channels`, plane tap `a < na`, row tap `b < nb`) reads the input row at offset `i ·
 /// cs + origin + a · da + b · db` when `a` is in `a_ok` and `b` in `b_ok`, and zeros
@@ -467,7 +467,7 @@ fn fill(
 /// multiple of 4). Offsets wrap (the transposed engine's taps step backwards); only those of
 /// taps inside the input are used. The same entries as the closures of [`conv`] and
 /// [`transposed`] (a test compares them).
-#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+#[cfg(any(test, all(feature = "dsp", target_arch = "arm")))]
 #[derive(Clone, Copy)]
 struct LineTaps {
     channels: usize,
@@ -481,7 +481,7 @@ struct LineTaps {
     b_ok: (usize, usize),
 }
 
-#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+#[cfg(any(test, all(feature = "dsp", target_arch = "arm")))]
 impl LineTaps {
     /// The taps of a forward convolution's output row `(z, y)`: input plane `z·sd + a − pd`
     /// and row `y·sh + b − ph`.
@@ -528,7 +528,7 @@ impl LineTaps {
 }
 
 /// The entries of [`LineTaps`] in order, counted up without multiplications.
-#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+#[cfg(any(test, all(feature = "dsp", target_arch = "arm")))]
 struct TapCursor {
     taps: LineTaps,
     v_len: usize,
@@ -543,7 +543,7 @@ struct TapCursor {
     a_in: bool,
 }
 
-#[cfg(any(test, all(feature = "mve", target_arch = "arm")))]
+#[cfg(any(test, all(feature = "dsp", target_arch = "arm")))]
 impl TapCursor {
     fn new(taps: LineTaps) -> Self {
         TapCursor {
@@ -584,11 +584,11 @@ impl TapCursor {
     }
 }
 
-/// [`fill`] with Helium: the same line, its rows named by `taps`, handed out 16 line words at
-/// a time by [`crate::mve::ChannelTaps`] and packed by [`crate::mve::pack_line_quads`]. One
+/// [`fill`] on ARM (`dsp`, `mve`): the same line, its rows named by `taps`, handed out 16 line words at
+/// a time by [`crate::dsp::ChannelTaps`] and packed by [`crate::dsp::pack_line_quads`]. One
 /// copy for every engine and layer (flash), called once per line. Rows whose length is
 /// not a multiple of 4, or more than [`MAX_ROW_TAPS`] taps per channel, go through [`fill`].
-#[cfg(all(feature = "mve", target_arch = "arm"))]
+#[cfg(all(feature = "dsp", target_arch = "arm"))]
 #[inline(never)]
 fn fill_taps(
     line: &mut [u32],
@@ -599,7 +599,7 @@ fn fill_taps(
     off: i16,
     taps: LineTaps,
 ) {
-    use crate::mve::{ChannelTaps, LineRows};
+    use crate::dsp::{ChannelTaps, LineRows};
     let (lo, hi, in0) = span;
     let vw = vp / 2;
     let len = hi.saturating_sub(lo).min(MAX_ROW);
@@ -640,7 +640,7 @@ fn fill_taps(
         let Some(dst) = words.get_mut(lo * vw + k0..) else {
             return;
         };
-        if !crate::mve::pack_line_quads(dst, vw, &rows) {
+        if !crate::dsp::pack_line_quads(dst, vw, &rows) {
             return;
         }
         k0 += kn;
@@ -649,8 +649,8 @@ fn fill_taps(
 
 /// Most taps per channel (`na · nb`) [`fill_taps`] tabulates: 3 × 3 forward and 2 × 2
 /// transposed ones in the EPSSN layers.
-#[cfg(all(feature = "mve", target_arch = "arm"))]
-const MAX_ROW_TAPS: usize = crate::mve::ChannelTaps::MAX_TAPS;
+#[cfg(all(feature = "dsp", target_arch = "arm"))]
+const MAX_ROW_TAPS: usize = crate::dsp::ChannelTaps::MAX_TAPS;
 
 /// Line words of a row of `cols` columns of `vp` entries (two i16 per word). This and the
 /// helpers below are the fit formulas, shared by the run-time fit checks and the const
@@ -718,8 +718,8 @@ pub(crate) fn conv<R: Apply>(
     let [kd, kh, kw] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, pw] = shape.padding;
-    // With Helium the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
     let _ = (id, ih, sd, sh, pd, ph);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let v_len = ic * kd * kh;
@@ -765,7 +765,7 @@ pub(crate) fn conv<R: Apply>(
         pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
-                #[cfg(all(feature = "mve", target_arch = "arm"))]
+                #[cfg(all(feature = "dsp", target_arch = "arm"))]
                 fill_taps(
                     line,
                     vp,
@@ -775,7 +775,7 @@ pub(crate) fn conv<R: Apply>(
                     off,
                     LineTaps::forward(shape, z, y),
                 );
-                #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+                #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
                 {
                     // v = (i, kz, ky), counted up without divisions.
                     let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
@@ -1063,8 +1063,8 @@ pub(crate) fn transposed<R: Apply>(
     let [kd, kh, kw] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, _] = shape.padding;
-    // With Helium the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
+    #[cfg(all(feature = "dsp", target_arch = "arm"))]
     let _ = (id, ih);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let out_plane = od * oh * ow;
@@ -1127,12 +1127,12 @@ pub(crate) fn transposed<R: Apply>(
                 for qy in 0..ny {
                     let y = y0 + qy * sh;
                     let by = (y + ph) / sh;
-                    #[cfg(all(feature = "mve", target_arch = "arm"))]
+                    #[cfg(all(feature = "dsp", target_arch = "arm"))]
                     {
                         let taps = LineTaps::transposed(shape, (bz, by), (tz, ty));
                         fill_taps(line, vp, cols, span, input, off, taps);
                     }
-                    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+                    #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
                     {
                         // v = (i, a, b), counted up without divisions.
                         let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
