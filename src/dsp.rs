@@ -1235,6 +1235,27 @@ mod line_rows {
             self.len = 0;
         }
 
+        /// The pairs of rows and the blocks of four columns of a fill of a `dst_len`-word
+        /// line `vw` words wide: `Some((0, 0))` for no rows; `None` for an odd number of
+        /// rows, `need` not a positive multiple of 4, or a line too short for the last row's
+        /// last column. The check both fills ([`pack_line_quads`] and its Helium twin) make.
+        #[inline(always)]
+        pub(crate) fn fill_shape(&self, dst_len: usize, vw: usize) -> Option<(usize, usize)> {
+            let (pairs, need) = (self.len / 2, self.need);
+            if self.len == 0 {
+                return Some((0, 0));
+            }
+            let fits = self.len.is_multiple_of(2)
+                && need >= 4
+                && need.is_multiple_of(4)
+                && vw <= usize::MAX / 16
+                && (need - 1)
+                    .checked_mul(vw)
+                    .and_then(|e| e.checked_add(pairs - 1))
+                    .is_some_and(|last| last < dst_len);
+            fits.then_some((pairs, need / 4))
+        }
+
         /// Replaces the rows with `count` rows from `next` (each row and the offset its entries
         /// get); false, keeping those before it, at the first row shorter than `need` or when
         /// `count` exceeds [`LineRows::CAPACITY`].
@@ -1440,20 +1461,11 @@ mod line_rows {
         return crate::mve::pack_line_quads(dst, vw, rows);
         #[cfg(not(feature = "mve"))]
         {
-            let (pairs, need) = (rows.len / 2, rows.need);
-            if pairs == 0 {
-                return rows.len == 0;
-            }
-            let fits = rows.len.is_multiple_of(2)
-                && need >= 4
-                && need.is_multiple_of(4)
-                && vw <= usize::MAX / 16
-                && (need - 1)
-                    .checked_mul(vw)
-                    .and_then(|e| e.checked_add(pairs - 1))
-                    .is_some_and(|last| last < dst.len());
-            if !fits {
+            let Some((pairs, quads)) = rows.fill_shape(dst.len(), vw) else {
                 return false;
+            };
+            if pairs == 0 {
+                return true;
             }
             // SAFETY: pair k reads rows[2k] and rows[2k + 1] (k < pairs, 2·pairs = rows.len ≤
             // CAPACITY, written; MaybeUninit<LineRow> has LineRow's layout), need bytes of each
@@ -1513,7 +1525,7 @@ mod line_rows {
                     inout("r0") rows.rows.as_ptr() => _,
                     inout("r1") dst.as_mut_ptr() => _,
                     inout("r2") pairs => _,
-                    inout("r3") need / 4 => _,
+                    inout("r3") quads => _,
                     out("r4") _,
                     out("r5") _,
                     out("r8") _,

@@ -207,25 +207,16 @@ pub fn pack_strided_quads(
 /// rows and checking slices). Returns false, doing nothing, for an odd number of rows, `need`
 /// not a positive multiple of 4, or a `dst` too short.
 pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'_>) -> bool {
-    let (pairs, need) = (rows.len / 2, rows.need);
-    if pairs == 0 {
-        return rows.len == 0;
-    }
-    let fits = rows.len.is_multiple_of(2)
-        && need >= 4
-        && need.is_multiple_of(4)
-        && vw <= usize::MAX / 16
-        && (need - 1)
-            .checked_mul(vw)
-            .and_then(|e| e.checked_add(pairs - 1))
-            .is_some_and(|last| last < dst.len());
-    if !fits {
+    let Some((pairs, quads)) = rows.fill_shape(dst.len(), vw) else {
         return false;
+    };
+    if pairs == 0 {
+        return true;
     }
     // SAFETY: pair k reads rows[2k] and rows[2k + 1] (k < pairs, 2·pairs = rows.len ≤
     // CAPACITY, written; MaybeUninit<LineRow> has LineRow's layout), need bytes of each from its address (every pushed row holds at least need
     // bytes, and the borrow 'a keeps them alive), and writes dst[k + j·vw] for j < need (the
-    // last index, checked above, is in bounds); need / 4 ≥ 1 and pairs ≥ 1, so the
+    // last index, checked by fill_shape, is in bounds); need / 4 ≥ 1 and pairs ≥ 1, so the
     // `DLS`/`LE` loop runs exactly need / 4 times per pair and the pair loop pairs times.
     #[allow(unsafe_code)]
     unsafe {
@@ -260,7 +251,7 @@ pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'
             dk = inout(reg) dst.as_mut_ptr() => _,
             dp = inout(reg) vw => _,
             sb = in(reg) vw * 16,
-            quads = in(reg) need / 4,
+            quads = in(reg) quads,
             out("lr") _,
             out("d0") _, out("d1") _, out("d2") _, out("d3") _,
             out("d4") _, out("d5") _,
