@@ -217,17 +217,75 @@ pub fn dot2x2_row(
     bias: [i32; 2],
     (acc0, acc1, astep): (&mut [i32], &mut [i32], usize),
 ) -> bool {
-    // With Helium and an even number of positions: the pair loop checks exactly the slices
-    // checked below (and refuses what they refuse), so it runs first, checked once.
+    RowPlan::new(step, positions, n, astep).run(x, w, bias, (acc0, acc1))
+}
+
+/// The shape of a [`dot2x2_row`] call (`step`, `positions`, `n`, `astep`), prepared once for
+/// the many rows that share it: with Helium and an even number of positions, the pair loop's
+/// shape checked up front ([`crate::mve::PairRows`]), so a row's call only compares slice
+/// lengths. [`RowPlan::run`] computes exactly what [`dot2x2_row`] does.
+#[derive(Clone, Copy, Debug)]
+pub struct RowPlan {
+    step: usize,
+    positions: usize,
+    n: usize,
+    astep: usize,
     #[cfg(all(feature = "mve", target_arch = "arm"))]
-    if positions.is_multiple_of(2)
-        && positions > 0
-        && n.is_multiple_of(2)
-        && n >= 4
-        && crate::mve::dot2x2_row_pairs(x, (step, n), positions / 2, w, bias, (acc0, acc1, astep))
-    {
-        return true;
+    pairs: Option<crate::mve::PairRows>,
+}
+
+impl RowPlan {
+    /// The plan of rows of `positions` dot products of `n` words, `step` words apart, into
+    /// accumulators `astep` words apart.
+    #[inline(always)]
+    pub fn new(step: usize, positions: usize, n: usize, astep: usize) -> Self {
+        RowPlan {
+            step,
+            positions,
+            n,
+            astep,
+            // The pair loop checks exactly the slices `dot2x2_row_checked` checks (and refuses
+            // what they refuse), so where it applies it runs alone.
+            #[cfg(all(feature = "mve", target_arch = "arm"))]
+            pairs: if positions.is_multiple_of(2) && n.is_multiple_of(2) {
+                crate::mve::PairRows::new(step, n, positions / 2, astep)
+            } else {
+                None
+            },
+        }
     }
+
+    /// One row, as [`dot2x2_row`] with this plan's shape.
+    #[inline(always)]
+    pub fn run(
+        &self,
+        x: &[u32],
+        w: &[u32],
+        bias: [i32; 2],
+        (acc0, acc1): (&mut [i32], &mut [i32]),
+    ) -> bool {
+        #[cfg(all(feature = "mve", target_arch = "arm"))]
+        if let Some(pairs) = &self.pairs {
+            return pairs.run(x, w, bias, (acc0, acc1));
+        }
+        let (step, positions, n) = (self.step, self.positions, self.n);
+        dot2x2_row_checked(x, step, positions, w, n, bias, (acc0, acc1, self.astep))
+    }
+}
+
+/// [`dot2x2_row`] for the shapes [`RowPlan`] does not hand to Helium's pair loop alone: the
+/// shape and the slices checked here, every row. Not inlined: each kernel's row loop calls it
+/// from one place, and its code stays out of the kernels' hot loops.
+#[inline(never)]
+fn dot2x2_row_checked(
+    x: &[u32],
+    step: usize,
+    positions: usize,
+    w: &[u32],
+    n: usize,
+    bias: [i32; 2],
+    (acc0, acc1, astep): (&mut [i32], &mut [i32], usize),
+) -> bool {
     let last = match positions.checked_sub(1) {
         None => return true,
         Some(l) => l,

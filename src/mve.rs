@@ -269,7 +269,7 @@ pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'
 /// are one or two words apart (`astep` 1 or 2: the line engines' rows and stride-2 phases),
 /// its state in registers; otherwise about 22, the state on the stack, and 16 more for the
 /// last two words when `n ≡ 2 mod 4`. Returns false, doing nothing, for any other `n` or a slice too
-/// short for `pairs`.
+/// short for `pairs`: [`PairRows::new`] and [`PairRows::run`] in one call.
 pub fn dot2x2_row_pairs(
     x: &[u32],
     (step, n): (usize, usize),
@@ -281,40 +281,177 @@ pub fn dot2x2_row_pairs(
     if pairs == 0 {
         return true;
     }
-    let last = 2 * pairs - 1;
-    let fits = matches!(n % 4, 0 | 2)
-        && n >= 4
-        && pairs <= usize::MAX / 4
-        && step <= usize::MAX / 8
-        && astep <= usize::MAX / 8
-        && last
-            .checked_mul(step)
-            .and_then(|a| a.checked_add(n))
-            .is_some_and(|e| e <= x.len())
-        && n.checked_mul(2).is_some_and(|e| e <= w.len())
-        && last
-            .checked_mul(astep)
-            .is_some_and(|a| a < acc0.len() && a < acc1.len());
-    if !fits {
-        return false;
+    PairRows::new(step, n, pairs, astep).is_some_and(|rows| rows.run(x, w, bias, (acc0, acc1)))
+}
+
+/// The shape of a [`dot2x2_row_pairs`] call, checked once: a layer runs every row of a phase
+/// with one shape, so each row's call compares four slice lengths with the ones computed
+/// here instead of checking the whole shape again (about 50 instructions a call).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PairRows {
+    step: usize,
+    n: usize,
+    pairs: usize,
+    astep: usize,
+    /// The slice lengths a row needs: x, w and each accumulator row.
+    x_len: usize,
+    w_len: usize,
+    acc_len: usize,
+}
+
+impl PairRows {
+    /// The shape of `pairs ≥ 1` pairs of positions `step` words apart, `n` words each
+    /// (`n ≥ 4`, `n ≡ 0` or `2 mod 4`), accumulators `astep` words apart; `None` for any
+    /// other shape or one whose extent overflows.
+    pub fn new(step: usize, n: usize, pairs: usize, astep: usize) -> Option<Self> {
+        if pairs == 0
+            || !matches!(n % 4, 0 | 2)
+            || n < 4
+            || pairs > usize::MAX / 4
+            || step > usize::MAX / 8
+            || astep > usize::MAX / 8
+        {
+            return None;
+        }
+        let last = 2 * pairs - 1;
+        Some(PairRows {
+            step,
+            n,
+            pairs,
+            astep,
+            x_len: last.checked_mul(step)?.checked_add(n)?,
+            w_len: n.checked_mul(2)?,
+            acc_len: last.checked_mul(astep)?.checked_add(1)?,
+        })
     }
-    // Accumulators one or two words apart (the line engine's rows, the transposed
-    // engine's x phases of stride 2), `n` a multiple of 4: the loop below with its state in
-    // registers, about 13 instructions per pair around the inner loop.
-    if n % 4 == 0 && (astep == 1 || astep == 2) {
-        let st = [
+
+    /// Pairs of positions per row.
+    pub fn pairs(&self) -> usize {
+        self.pairs
+    }
+
+    /// One row: what [`dot2x2_row_pairs`] computes for this shape. Returns false, doing
+    /// nothing, when a slice is shorter than the shape needs.
+    #[inline(never)]
+    pub fn run(
+        &self,
+        x: &[u32],
+        w: &[u32],
+        bias: [i32; 2],
+        (acc0, acc1): (&mut [i32], &mut [i32]),
+    ) -> bool {
+        let PairRows {
+            step,
+            n,
+            pairs,
+            astep,
+            ..
+        } = *self;
+        if x.len() < self.x_len
+            || w.len() < self.w_len
+            || acc0.len() < self.acc_len
+            || acc1.len() < self.acc_len
+        {
+            return false;
+        }
+        // Accumulators one or two words apart (the line engine's rows, the transposed
+        // engine's x phases of stride 2), `n` a multiple of 4: the loop below with its state in
+        // registers, about 13 instructions per pair around the inner loop.
+        if n % 4 == 0 && (astep == 1 || astep == 2) {
+            let st = [
+                bias[0] as u32,
+                bias[1] as u32,
+                (n / 4) as u32,
+                (n * 8) as u32,
+                (2 * step * 4).wrapping_sub(n * 4) as u32,
+            ];
+            macro_rules! pairs_in_registers {
+                ($($store:literal),*) => {
+                    core::arch::asm!(
+                        "2:",
+                        "ldr   lr, [{st}, #8]",
+                        "dls   lr, lr",
+                        "3:",
+                        "vldrw.u32    q0, [{x0}], #16",
+                        "vldrw.u32    q1, [{x1}], #16",
+                        "vld20.32     {{q2, q3}}, [{w}]",
+                        "vld21.32     {{q2, q3}}, [{w}]!",
+                        "vmlava.s16   r0, q0, q2",
+                        "vmlava.s16   r2, q1, q2",
+                        "vmlava.s16   r4, q0, q3",
+                        "vmlava.s16   r8, q1, q3",
+                        "le    lr, 3b",
+                        $($store,)*
+                        // Weights back to the pair's start, inputs on to the next pair's.
+                        "ldrd  r0, r2, [{st}, #12]",
+                        "sub   {w}, {w}, r0",
+                        "add   {x0}, {x0}, r2",
+                        "add   {x1}, {x1}, r2",
+                        "ldrd  r0, r4, [{st}]",
+                        "mov   r2, r0",
+                        "mov   r8, r4",
+                        "subs  {pairs}, {pairs}, #1",
+                        "bne   2b",
+                        st = in(reg) st.as_ptr(),
+                        x0 = inout(reg) x.as_ptr() => _,
+                        x1 = inout(reg) x.as_ptr().add(step) => _,
+                        w = inout(reg) w.as_ptr() => _,
+                        a0 = inout(reg) acc0.as_mut_ptr() => _,
+                        a1 = inout(reg) acc1.as_mut_ptr() => _,
+                        pairs = inout(reg) pairs => _,
+                        inout("r0") bias[0] => _,
+                        inout("r2") bias[0] => _,
+                        inout("r4") bias[1] => _,
+                        inout("r8") bias[1] => _,
+                        out("lr") _,
+                        out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                        out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                        options(nostack),
+                    )
+                };
+            }
+            // SAFETY: as for the loop below (same reads; n / 4 ≥ 1 inner iterations per pair,
+            // which leave the x pointers n words and the weight pointer 2n words on, undone by
+            // the 8n-byte step back and the 2·step − n word advance). Pair p stores to
+            // acc[2p·astep] and acc[(2p + 1)·astep], in bounds (the lengths `new` computed, checked above); `st` is a live
+            // local array of 5 words.
+            #[allow(unsafe_code)]
+            unsafe {
+                if astep == 1 {
+                    pairs_in_registers!("strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8");
+                } else {
+                    pairs_in_registers!(
+                        "str   r0, [{a0}], #8",
+                        "str   r2, [{a0}], #8",
+                        "str   r4, [{a1}], #8",
+                        "str   r8, [{a1}], #8"
+                    );
+                }
+            }
+            return true;
+        }
+        // The pair loop's state, read back after each pair: accumulator pointers, accumulator
+        // step (bytes), biases, weights, the advance from one pair's end to the next pair's
+        // start (bytes), the inner loop's count, pairs left.
+        let mut st = [
+            acc0.as_mut_ptr() as u32,
+            acc1.as_mut_ptr() as u32,
+            (astep * 4) as u32,
             bias[0] as u32,
             bias[1] as u32,
-            (n / 4) as u32,
-            (n * 8) as u32,
+            w.as_ptr() as u32,
             (2 * step * 4).wrapping_sub(n * 4) as u32,
+            (n / 4) as u32,
+            pairs as u32,
         ];
-        macro_rules! pairs_in_registers {
-            ($($store:literal),*) => {
+        // The last two words of a pair (`n ≡ 2 mod 4`): per word, its two positions' words and
+        // the two channels' weights through four `SMLAD`s.
+        macro_rules! pairs {
+            ($($tail:literal),*) => {
                 core::arch::asm!(
                     "2:",
-                    "ldr   lr, [{st}, #8]",
-                    "dls   lr, lr",
+                    "ldr   {t}, [{st}, #28]",
+                    "dls   lr, {t}",
                     "3:",
                     "vldrw.u32    q0, [{x0}], #16",
                     "vldrw.u32    q1, [{x1}], #16",
@@ -325,24 +462,33 @@ pub fn dot2x2_row_pairs(
                     "vmlava.s16   r4, q0, q3",
                     "vmlava.s16   r8, q1, q3",
                     "le    lr, 3b",
-                    $($store,)*
-                    // Weights back to the pair's start, inputs on to the next pair's.
-                    "ldrd  r0, r2, [{st}, #12]",
-                    "sub   {w}, {w}, r0",
-                    "add   {x0}, {x0}, r2",
-                    "add   {x1}, {x1}, r2",
-                    "ldrd  r0, r4, [{st}]",
+                    $($tail,)*
+                    "ldrd  {t}, {u}, [{st}]",
+                    "ldr   {w}, [{st}, #8]",
+                    "str   r0, [{t}]",
+                    "str   r2, [{t}, {w}]",
+                    "str   r4, [{u}]",
+                    "str   r8, [{u}, {w}]",
+                    "add   {t}, {t}, {w}, lsl #1",
+                    "add   {u}, {u}, {w}, lsl #1",
+                    "strd  {t}, {u}, [{st}]",
+                    "ldrd  r0, r4, [{st}, #12]",
                     "mov   r2, r0",
                     "mov   r8, r4",
-                    "subs  {pairs}, {pairs}, #1",
+                    "ldrd  {w}, {t}, [{st}, #20]",
+                    "add   {x0}, {x0}, {t}",
+                    "add   {x1}, {x1}, {t}",
+                    "ldr   {t}, [{st}, #32]",
+                    "subs  {t}, {t}, #1",
+                    "str   {t}, [{st}, #32]",
                     "bne   2b",
-                    st = in(reg) st.as_ptr(),
+                    st = in(reg) st.as_mut_ptr(),
                     x0 = inout(reg) x.as_ptr() => _,
                     x1 = inout(reg) x.as_ptr().add(step) => _,
                     w = inout(reg) w.as_ptr() => _,
-                    a0 = inout(reg) acc0.as_mut_ptr() => _,
-                    a1 = inout(reg) acc1.as_mut_ptr() => _,
-                    pairs = inout(reg) pairs => _,
+                    t = out(reg) _,
+                    u = out(reg) _,
+                    v = out(reg) _,
                     inout("r0") bias[0] => _,
                     inout("r2") bias[0] => _,
                     inout("r4") bias[1] => _,
@@ -354,129 +500,41 @@ pub fn dot2x2_row_pairs(
                 )
             };
         }
-        // SAFETY: as for the loop below (same reads; n / 4 ≥ 1 inner iterations per pair,
-        // which leave the x pointers n words and the weight pointer 2n words on, undone by
-        // the 8n-byte step back and the 2·step − n word advance). Pair p stores to
-        // acc[2p·astep] and acc[(2p + 1)·astep], in bounds (checked above); `st` is a live
-        // local array of 5 words.
+        // SAFETY: pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
+        // most at last·step + n ≤ x.len(), and w[..2n] (the lengths `new` computed, checked
+        // above); n / 4 ≥ 1, so the inner
+        // `DLS`/`LE` loop runs exactly n / 4 times, and with the tail (n mod 4 = 2) leaves both
+        // x pointers n words on and the weight pointer 2n words on; the advance (2·step − n
+        // words) brings the x pointers to the next pair's start. The stores go to
+        // acc[q·astep] and acc[(q + 1)·astep] with q + 1 ≤ last, in bounds of both accumulator
+        // slices (checked above). `st` is a live local array of 9 words.
         #[allow(unsafe_code)]
         unsafe {
-            if astep == 1 {
-                pairs_in_registers!("strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8");
+            if n % 4 == 0 {
+                pairs!("@ {v}");
             } else {
-                pairs_in_registers!(
-                    "str   r0, [{a0}], #8",
-                    "str   r2, [{a0}], #8",
-                    "str   r4, [{a1}], #8",
-                    "str   r8, [{a1}], #8"
+                pairs!(
+                    "ldr   {t}, [{x0}], #4",
+                    "ldr   {u}, [{x1}], #4",
+                    "ldr   {v}, [{w}], #4",
+                    "smlad r0, {t}, {v}, r0",
+                    "smlad r2, {u}, {v}, r2",
+                    "ldr   {v}, [{w}], #4",
+                    "smlad r4, {t}, {v}, r4",
+                    "smlad r8, {u}, {v}, r8",
+                    "ldr   {t}, [{x0}], #4",
+                    "ldr   {u}, [{x1}], #4",
+                    "ldr   {v}, [{w}], #4",
+                    "smlad r0, {t}, {v}, r0",
+                    "smlad r2, {u}, {v}, r2",
+                    "ldr   {v}, [{w}], #4",
+                    "smlad r4, {t}, {v}, r4",
+                    "smlad r8, {u}, {v}, r8"
                 );
             }
         }
-        return true;
+        true
     }
-    // The pair loop's state, read back after each pair: accumulator pointers, accumulator
-    // step (bytes), biases, weights, the advance from one pair's end to the next pair's
-    // start (bytes), the inner loop's count, pairs left.
-    let mut st = [
-        acc0.as_mut_ptr() as u32,
-        acc1.as_mut_ptr() as u32,
-        (astep * 4) as u32,
-        bias[0] as u32,
-        bias[1] as u32,
-        w.as_ptr() as u32,
-        (2 * step * 4).wrapping_sub(n * 4) as u32,
-        (n / 4) as u32,
-        pairs as u32,
-    ];
-    // The last two words of a pair (`n ≡ 2 mod 4`): per word, its two positions' words and
-    // the two channels' weights through four `SMLAD`s.
-    macro_rules! pairs {
-        ($($tail:literal),*) => {
-            core::arch::asm!(
-                "2:",
-                "ldr   {t}, [{st}, #28]",
-                "dls   lr, {t}",
-                "3:",
-                "vldrw.u32    q0, [{x0}], #16",
-                "vldrw.u32    q1, [{x1}], #16",
-                "vld20.32     {{q2, q3}}, [{w}]",
-                "vld21.32     {{q2, q3}}, [{w}]!",
-                "vmlava.s16   r0, q0, q2",
-                "vmlava.s16   r2, q1, q2",
-                "vmlava.s16   r4, q0, q3",
-                "vmlava.s16   r8, q1, q3",
-                "le    lr, 3b",
-                $($tail,)*
-                "ldrd  {t}, {u}, [{st}]",
-                "ldr   {w}, [{st}, #8]",
-                "str   r0, [{t}]",
-                "str   r2, [{t}, {w}]",
-                "str   r4, [{u}]",
-                "str   r8, [{u}, {w}]",
-                "add   {t}, {t}, {w}, lsl #1",
-                "add   {u}, {u}, {w}, lsl #1",
-                "strd  {t}, {u}, [{st}]",
-                "ldrd  r0, r4, [{st}, #12]",
-                "mov   r2, r0",
-                "mov   r8, r4",
-                "ldrd  {w}, {t}, [{st}, #20]",
-                "add   {x0}, {x0}, {t}",
-                "add   {x1}, {x1}, {t}",
-                "ldr   {t}, [{st}, #32]",
-                "subs  {t}, {t}, #1",
-                "str   {t}, [{st}, #32]",
-                "bne   2b",
-                st = in(reg) st.as_mut_ptr(),
-                x0 = inout(reg) x.as_ptr() => _,
-                x1 = inout(reg) x.as_ptr().add(step) => _,
-                w = inout(reg) w.as_ptr() => _,
-                t = out(reg) _,
-                u = out(reg) _,
-                v = out(reg) _,
-                inout("r0") bias[0] => _,
-                inout("r2") bias[0] => _,
-                inout("r4") bias[1] => _,
-                inout("r8") bias[1] => _,
-                out("lr") _,
-                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                options(nostack),
-            )
-        };
-    }
-    // SAFETY: pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
-    // most at last·step + n ≤ x.len(), and w[..2n] (checked above); n / 4 ≥ 1, so the inner
-    // `DLS`/`LE` loop runs exactly n / 4 times, and with the tail (n mod 4 = 2) leaves both
-    // x pointers n words on and the weight pointer 2n words on; the advance (2·step − n
-    // words) brings the x pointers to the next pair's start. The stores go to
-    // acc[q·astep] and acc[(q + 1)·astep] with q + 1 ≤ last, in bounds of both accumulator
-    // slices (checked above). `st` is a live local array of 9 words.
-    #[allow(unsafe_code)]
-    unsafe {
-        if n % 4 == 0 {
-            pairs!("@ {v}");
-        } else {
-            pairs!(
-                "ldr   {t}, [{x0}], #4",
-                "ldr   {u}, [{x1}], #4",
-                "ldr   {v}, [{w}], #4",
-                "smlad r0, {t}, {v}, r0",
-                "smlad r2, {u}, {v}, r2",
-                "ldr   {v}, [{w}], #4",
-                "smlad r4, {t}, {v}, r4",
-                "smlad r8, {u}, {v}, r8",
-                "ldr   {t}, [{x0}], #4",
-                "ldr   {u}, [{x1}], #4",
-                "ldr   {v}, [{w}], #4",
-                "smlad r0, {t}, {v}, r0",
-                "smlad r2, {u}, {v}, r2",
-                "ldr   {v}, [{w}], #4",
-                "smlad r4, {t}, {v}, r4",
-                "smlad r8, {u}, {v}, r8"
-            );
-        }
-    }
-    true
 }
 
 /// The four-value blocks of [`crate::dsp::requant_row_s8`]: for `i < 4 · quads`,

@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -377,7 +377,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 /// 2, 4 and 6 words). Returns (cases, mismatches).
 fn inner_loops(rng: &mut Rng) -> (u32, u32) {
     use epssn::dsp::{
-        dot2x2, dot2x2_row, pack, pack_rows, requant_max_row, requant_row_s8, smmulr,
+        dot2x2, dot2x2_row, pack, pack_rows, requant_max_row, requant_row_s8, smmulr, RowPlan,
     };
     let (mut runs, mut bad) = (0u32, 0u32);
     let mut x = [0u32; 2048];
@@ -424,6 +424,37 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if !ok
             || (0..positions)
                 .any(|q| acc0[q * astep] != plain(q, 0) || acc1[q * astep] != plain(q, 1))
+        {
+            bad += 1;
+        }
+        // RowPlan: the shape prepared once, then a row at another offset of x (as the kernels
+        // run every row of a layer), and a too-short x refused with the accumulators untouched.
+        let plan = RowPlan::new(step, positions, n, astep);
+        let shift = (rng.next() % 64) as usize;
+        let (mut acc0, mut acc1) = ([0i32; 32], [0i32; 32]);
+        let ok = plan.run(&x[shift..], &w, bias, (&mut acc0, &mut acc1));
+        let plain_at = |q: usize, c: usize| -> i32 {
+            let mut a = bias[c];
+            for k in 0..n {
+                let (xv, wv) = (x[shift + q * step + k], w[2 * k + c]);
+                let lo = (xv as u16 as i16 as i32).wrapping_mul(wv as u16 as i16 as i32);
+                let hi =
+                    ((xv >> 16) as u16 as i16 as i32).wrapping_mul((wv >> 16) as u16 as i16 as i32);
+                a = a.wrapping_add(lo).wrapping_add(hi);
+            }
+            a
+        };
+        runs += 1;
+        if !ok
+            || (0..positions)
+                .any(|q| acc0[q * astep] != plain_at(q, 0) || acc1[q * astep] != plain_at(q, 1))
+        {
+            bad += 1;
+        }
+        let need = (positions - 1) * step + n;
+        let (mut s0, mut s1) = ([7i32; 32], [7i32; 32]);
+        runs += 1;
+        if plan.run(&x[..need - 1], &w, bias, (&mut s0, &mut s1)) || s0 != [7; 32] || s1 != [7; 32]
         {
             bad += 1;
         }

@@ -674,6 +674,8 @@ fn step_fast<R: LogitRequant>(
     let mut col = [0u32; HEAD_COL_WORDS];
     let mut logits = [[0i8; MAX_BINS]; 2];
     let mut acc = [[0i32; MAX_FAST_ROWS]; 2];
+    // Every range tap's dot products: the `ih` range rows of a column, `n` words each.
+    let plan = crate::dsp::RowPlan::new(n, ih, n, 1);
     let inside = |x: usize| (x < iw).then_some(x);
     for j in 0..f.cols {
         // Columns g_lo − j, in slot (g_lo − j) mod Q.
@@ -707,15 +709,7 @@ fn step_fast<R: LogitRequant>(
             for ky in 0..kh {
                 let w = &wbuf[((r * f.pairs + p) * kh + ky) * 2 * n..][..2 * n];
                 let [aa, ab] = &mut acc;
-                crate::dsp::dot2x2_row(
-                    &col[..ih * n],
-                    n,
-                    ih,
-                    w,
-                    n,
-                    [bias; 2],
-                    (&mut aa[..ih], &mut ab[..ih], 1),
-                );
+                plan.run(&col[..ih * n], w, [bias; 2], (&mut aa[..ih], &mut ab[..ih]));
                 for half in 0..2 {
                     max[half] = rq.logits(
                         &acc[half][..ih],

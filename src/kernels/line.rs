@@ -257,9 +257,24 @@ pub(crate) struct RowOut {
 /// `line[q · step .. q · step + words]`, dotted with `words / 2` weight words per channel.
 #[derive(Clone, Copy)]
 pub(crate) struct RowIn {
-    pub positions: usize,
-    pub step: usize,
-    pub words: usize,
+    positions: usize,
+    words: usize,
+    /// The dot products' shape, checked once for every row of the layer.
+    plan: crate::dsp::RowPlan,
+}
+
+impl RowIn {
+    /// `positions` (at most [`MAX_POSITIONS`]) dot products of `words` words, `step` words
+    /// apart.
+    pub(crate) fn new(positions: usize, step: usize, words: usize) -> Self {
+        let positions = positions.min(MAX_POSITIONS);
+        let step = if words == 0 { 0 } else { step };
+        RowIn {
+            positions,
+            words,
+            plan: crate::dsp::RowPlan::new(step, positions, words, 1),
+        }
+    }
 }
 
 /// Most positions of one row (a row is at most [`MAX_ROW`] input columns).
@@ -356,10 +371,8 @@ pub(crate) fn row<R: Apply>(
     rout: RowOut,
     acc: &mut RowAcc,
 ) {
-    let n = rin.words;
-    let step = if n == 0 { 0 } else { rin.step };
+    let (n, positions) = (rin.words, rin.positions);
     let oc = bias.len().min(rq.len());
-    let positions = rin.positions.min(MAX_POSITIONS);
     let mut o = 0;
     while o < oc {
         let two = o + 1 < oc;
@@ -368,7 +381,7 @@ pub(crate) fn row<R: Apply>(
         };
         let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
         let [acc0, acc1] = &mut *acc;
-        if !crate::dsp::dot2x2_row(line, step, positions, w, n, [b0, b1], (acc0, acc1, 1)) {
+        if !rin.plan.run(line, w, [b0, b1], (acc0, acc1)) {
             return;
         }
         let at = |o: usize| o * rout.plane + rout.base;
@@ -745,11 +758,7 @@ pub(crate) fn conv<R: Apply>(
         wbuf, line, acc, ..
     } = scratch;
     let out_plane = od * oh * ow;
-    let rin = RowIn {
-        positions: ow,
-        step: sw * vp / 2,
-        words: n,
-    };
+    let rin = RowIn::new(ow, sw * vp / 2, n);
     let mut o0 = 0;
     while o0 < oc {
         let g = group.min(oc - o0);
@@ -1119,6 +1128,11 @@ pub(crate) fn transposed<R: Apply>(
                 vw,
             };
             let xs = x_phases(shape, params, &phase, (ixlo, base, laid_out), wbuf);
+            // Each x phase's dot products have one shape for every row of the phase.
+            let plans = xs.map(|(_, nx, tx, _, _)| {
+                let n = tx * vw;
+                crate::dsp::RowPlan::new(if n == 0 { 0 } else { vw }, nx, n, sw)
+            });
             // The hot loop stays in this body: moved into an `#[inline(always)]` helper it
             // cost about 95 k instructions per pair more on the QEMU Cortex-M7.
             for qz in 0..nz {
@@ -1165,16 +1179,15 @@ pub(crate) fn transposed<R: Apply>(
                         let two = o + 1 < oc;
                         let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
                         let [acc0, acc1] = &mut *acc;
-                        for &(x0, nx, tx, wofs, start) in xs.iter().take(sw.min(MAX_STRIDE)) {
+                        let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
+                        for (&(x0, nx, tx, wofs, start), plan) in phases {
                             if nx == 0 {
                                 continue;
                             }
                             let n = tx * vw;
                             let w = wbuf.get(wofs + o * n..wofs + (o + 2) * n).unwrap_or(&[]);
                             let x = line.get(start..vw * cols).unwrap_or(&[]);
-                            let step = if n == 0 { 0 } else { vw };
-                            let accs = (&mut acc0[x0..], &mut acc1[x0..], sw);
-                            crate::dsp::dot2x2_row(x, step, nx, w, n, [b0, b1], accs);
+                            plan.run(x, w, [b0, b1], (&mut acc0[x0..], &mut acc1[x0..]));
                         }
                         let at = |o: usize| o * out_plane + base;
                         requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
