@@ -536,6 +536,76 @@ pub fn requant_max_row(
     mx as i8
 }
 
+/// Each channel's requantisation as the five words the row loops take (multiplier, left1,
+/// right, half, neg: the tuple of [`requant_row_s8`]), every shift checked below 32 once, when
+/// a layer starts, rather than on every row.
+#[derive(Clone, Copy, Debug)]
+pub struct RowWords<'a>(&'a [[i32; 5]]);
+
+impl<'a> RowWords<'a> {
+    /// The words of `words.len()` channels; `None` if a `left1` or `right` is outside 0..32.
+    pub fn new(words: &'a [[i32; 5]]) -> Option<Self> {
+        let shifts = |p: &[i32; 5]| (0..32).contains(&p[1]) && (0..32).contains(&p[2]);
+        words.iter().all(shifts).then_some(RowWords(words))
+    }
+
+    /// Channels `range` of these.
+    #[inline(always)]
+    pub fn get(self, range: core::ops::Range<usize>) -> Option<Self> {
+        self.0.get(range).map(RowWords)
+    }
+
+    /// How many channels.
+    #[inline(always)]
+    pub fn len(self) -> usize {
+        self.0.len()
+    }
+
+    /// True for no channels.
+    #[inline(always)]
+    pub fn is_empty(self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+/// Rows of [`requant_row_s8`], one per channel of a line: row `c < params.len()` turns
+/// `acc[c·width ..][..width]` into `out[c·plane ..][..width]` with channel `c`'s words. With
+/// Helium and a width that is a multiple of 4, one call for every row
+/// ([`crate::mve::requant_rows_quads`]). Returns false, writing nothing, when a row's slices
+/// do not fit.
+pub fn requant_rows_s8(
+    acc: &[i32],
+    out: &mut [i8],
+    params: RowWords<'_>,
+    (width, plane): (usize, usize),
+    relu: bool,
+    skip: Option<&[i32; 256]>,
+) -> bool {
+    let (rows, params) = (params.len(), params.0);
+    let fits = rows.checked_mul(width).is_some_and(|n| n <= acc.len())
+        && rows.checked_sub(1).is_none_or(|r| {
+            r.checked_mul(plane)
+                .and_then(|a| a.checked_add(width))
+                .is_some_and(|n| n <= out.len())
+        });
+    if !fits {
+        return false;
+    }
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    if width.is_multiple_of(4)
+        && width > 0
+        && crate::mve::requant_rows_quads(acc, out, params, (width / 4, plane), relu, skip)
+    {
+        return true;
+    }
+    for (c, p) in params.iter().enumerate() {
+        let f = (p[0], p[1] as u32, p[2] as u32, p[3], p[4]);
+        let dst = &mut out[c * plane..][..width];
+        requant_row_s8(&acc[c * width..][..width], dst, f, relu, skip);
+    }
+    true
+}
+
 /// A row of a layer's int8 outputs from its accumulators: for the first
 /// `min(acc.len(), out.len())` values, `t = r(acc[i])` as in [`requant_max_row`], then with
 /// `relu` `t = max(t, 0)`, then with a skip table `t = t +sat skip[out[i] as u8]` (the value

@@ -630,6 +630,126 @@ pub fn requant_row_quads(
     }
 }
 
+/// [`requant_row_quads`] for rows one after another, one call per line of every channel:
+/// row `c < params.len()` requantises `acc[c·4·quads ..][..4·quads]` with `params[c]`
+/// (`[multiplier, left1, right, half, neg]`, as [`requant_row_quads`]'s tuple) into
+/// `out[c·plane ..][..4·quads]`; about 12 instructions per row around the 3.5 per value (the
+/// row calls took about 60). Returns false, writing nothing, unless `quads ≥ 1` and every
+/// row's slices fit. A `left1` or `right` of 32 or more shifts as `VSHL` does (the callers
+/// pass [`crate::dsp::RowWords`], whose shifts are below 32).
+pub fn requant_rows_quads(
+    acc: &[i32],
+    out: &mut [i8],
+    params: &[[i32; 5]],
+    (quads, plane): (usize, usize),
+    relu: bool,
+    skip: Option<&[i32; 256]>,
+) -> bool {
+    let rows = params.len();
+    let width = quads.saturating_mul(4);
+    let fits = rows > 0
+        && quads > 0
+        && quads < usize::MAX / 16
+        && rows.checked_mul(width).is_some_and(|n| n <= acc.len())
+        && (rows - 1)
+            .checked_mul(plane)
+            .and_then(|a| a.checked_add(width))
+            .is_some_and(|n| n <= out.len())
+        && plane <= i32::MAX as usize;
+    if !fits {
+        return false;
+    }
+    let lut = skip.map_or(core::ptr::null(), |l| l.as_ptr());
+    // Per row: its quads, then the step from the row's end to the next row's start (bytes).
+    let st = [quads as u32, plane.wrapping_sub(width) as u32];
+    // Without a skip table the ReLU is the clamp's lower bound (0 for −128); with one it
+    // comes before the skip's add, a `VMAX` with 0 (with i32::MIN, no ReLU).
+    let low: i32 = if relu && skip.is_none() { 0 } else { -128 };
+    let floor: i32 = if relu { 0 } else { i32::MIN };
+    // SAFETY: row c reads acc[c·width ..][..width] (rows are contiguous: the accumulator
+    // pointer runs on from one row to the next) and reads and writes out[c·plane ..][..width],
+    // in bounds for c < rows (checked above); the output pointer moves on by plane − width
+    // bytes after a row's width bytes. Each row's five words are read from params[c] (in
+    // bounds: the loop runs rows times, rows ≥ 1); `VSHL` by a register is defined for any
+    // shift. The skip table is gathered at unsigned byte indices < 256 (only in the skip
+    // variant). quads ≥ 1, so `DLS`/`LE` run each row's loop exactly quads times; `st` is a
+    // live local array.
+    #[allow(unsafe_code)]
+    unsafe {
+        macro_rules! rows {
+            ($relu:literal, $skip1:literal, $skip2:literal, $skip3:literal) => {
+                core::arch::asm!(
+                    "vmov.i32     q6, #127",
+                    "vdup.32      q7, {t}",
+                    "vdup.32      q2, {half}",
+                    "2:",
+                    "ldr   {t}, [{pp}]",
+                    "vdup.32      q4, {t}",
+                    "ldr   {t}, [{pp}, #16]",
+                    "vdup.32      q5, {t}",
+                    "ldrd  {l1}, {nr}, [{pp}, #4]",
+                    "ldr   {half}, [{pp}, #12]",
+                    "add   {pp}, {pp}, #20",
+                    "rsb   {nr}, {nr}, #0",
+                    "ldr   {t}, [{st}]",
+                    "dls   lr, {t}",
+                    "3:",
+                    "vldrw.u32    q0, [{ap}], #16",
+                    "vshl.s32     q0, {l1}",
+                    "vrmulh.s32   q0, q0, q4",
+                    "vshr.s32     q1, q0, #31",
+                    "vand         q1, q1, q5",
+                    "vadd.i32     q0, q0, {half}",
+                    "vadd.i32     q0, q0, q1",
+                    "vshl.s32     q0, {nr}",
+                    $relu,
+                    $skip1,
+                    $skip2,
+                    $skip3,
+                    "vmin.s32     q0, q0, q6",
+                    "vmax.s32     q0, q0, q7",
+                    "vstrb.32     q0, [r1], #4",
+                    "le    lr, 3b",
+                    "ldr   {t}, [{st}, #4]",
+                    "add   r1, r1, {t}",
+                    "cmp   {pp}, {pe}",
+                    "bne   2b",
+                    "@ {lut}",
+                    ap = inout(reg) acc.as_ptr() => _,
+                    // The narrowing byte store takes only a low register as its base.
+                    inout("r1") out.as_mut_ptr() => _,
+                    pp = inout(reg) params.as_ptr() => _,
+                    pe = in(reg) params.as_ptr().add(rows),
+                    st = in(reg) st.as_ptr(),
+                    lut = in(reg) lut,
+                    // The clamp's lower bound and the ReLU's floor, read before the rows.
+                    t = inout(reg) low => _,
+                    half = inout(reg) floor => _,
+                    l1 = out(reg) _,
+                    nr = out(reg) _,
+                    out("lr") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                    out("d12") _, out("d13") _, out("d14") _, out("d15") _,
+                    options(nostack),
+                )
+            };
+        }
+        if skip.is_some() {
+            rows!(
+                "vmax.s32 q0, q0, q2",
+                "vldrb.u32 q1, [r1]",
+                "vldrw.u32 q3, [{lut}, q1, uxtw #2]",
+                "vqadd.s32 q0, q0, q3"
+            );
+        } else {
+            rows!("", "", "", "");
+        }
+    }
+    true
+}
+
 /// The four-value blocks of [`crate::dsp::requant_max_row`]: `out[i] = sat(r(acc[i]))` for
 /// `i < 4 · quads` (`r` as in [`requant_row_quads`], `sat` the int8 clamp or, with `relu`,
 /// the clamp to `0..=127`), returning the larger of `max` and every value written (`VMAXV`

@@ -192,6 +192,13 @@ pub trait Apply: Copy {
     /// `MBQM(acc, M, shift)`.
     fn apply(self, acc: i32) -> i32;
 
+    /// The five words [`crate::dsp::requant_rows_s8`] takes (multiplier, left1, right, half,
+    /// neg), if this requantisation is that row loop's arithmetic.
+    #[inline(always)]
+    fn words(self) -> Option<[i32; 5]> {
+        None
+    }
+
     /// A whole row of int8 outputs with step 1 (`out[i] = clamp(ReLU?(apply(acc[i]))
     /// +sat skip[out[i]])`) through a specialised loop, if this requantisation has one:
     /// returns false (nothing written) otherwise.

@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, pack_rows, pack_strided, requant_row_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -520,6 +520,48 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
             t.clamp(-128, 127) as i8
         };
         if (0..len).any(|i| out[i] != expect(i)) || out[len..] != old[len..] {
+            bad += 1;
+        }
+        // requant_rows_s8: rows of their own parameters, `plane` apart (the bytes between
+        // rows untouched), the width a multiple of 4 or not; shifts of 32 refused up front.
+        let rows = 1 + (rng.next() % 4) as usize;
+        let width = 1 + (rng.next() % 13) as usize;
+        let plane = width + (rng.next() % 4) as usize;
+        let mut words = [[0i32; 5]; 5];
+        for p in words.iter_mut() {
+            let (l, r) = ((rng.next() % 3) as i32, (rng.next() % 12) as i32);
+            let m = (1 << 30) + (rng.next() % (1 << 30)) as i32;
+            let n = -((rng.next() % 2) as i32);
+            *p = [m, l, r, if r == 0 { 0 } else { 1 << (r - 1) }, n];
+        }
+        let params = epssn::dsp::RowWords::new(&words[..rows]);
+        let mut out = old;
+        let ok = params.is_some_and(|p| {
+            epssn::dsp::requant_rows_s8(&acc, &mut out, p, (width, plane), relu, skip)
+        });
+        let expect_row = |c: usize, i: usize| -> i8 {
+            let [m, l, r, h, n] = words[c];
+            let x = smmulr(acc[c * width + i].wrapping_shl(l as u32), m);
+            let t = x.wrapping_add(h).wrapping_add((x >> 31) & n) >> r;
+            let t = if relu { t.max(0) } else { t };
+            let t = match skip {
+                Some(lut) => t.saturating_add(lut[old[c * plane + i] as u8 as usize]),
+                None => t,
+            };
+            t.clamp(-128, 127) as i8
+        };
+        let written = |j: usize| j / plane < rows && j % plane < width;
+        runs += 1;
+        if !ok
+            || (0..rows).any(|c| (0..width).any(|i| out[c * plane + i] != expect_row(c, i)))
+            || (0..70).any(|j| !written(j) && out[j] != old[j])
+        {
+            bad += 1;
+        }
+        let mut wide = words;
+        wide[rows - 1][1 + (case % 2) as usize] = 32;
+        runs += 1;
+        if epssn::dsp::RowWords::new(&wide[..rows]).is_some() {
             bad += 1;
         }
         // requant_max_row: the same arithmetic, the int8 (or ReLU) clamp, and the maximum.

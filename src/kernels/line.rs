@@ -128,6 +128,13 @@ impl Apply for RowRequant {
     }
 
     #[inline(always)]
+    fn words(self) -> Option<[i32; 5]> {
+        // left1 ≤ 31 and right ≤ 31 by construction (`new`).
+        let (l, r) = (self.left1 as i32, self.right as i32);
+        Some([self.multiplier, l, r, self.half, self.neg])
+    }
+
+    #[inline(always)]
     fn row_s8(self, acc: &[i32], out: &mut [i8], relu: bool, skip: Option<&[i32; 256]>) -> bool {
         let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
         crate::dsp::requant_row_s8(acc, out, f, relu, skip);
@@ -211,37 +218,30 @@ fn requant_row<R: Apply>(
             }
         }
     }
-    match (skip, relu) {
-        (SkipLut::None, true) => store_row(acc, dst, step, |a, _, _| rq.apply(a).max(0)),
-        (SkipLut::None, false) => store_row(acc, dst, step, |a, _, _| rq.apply(a)),
-        (SkipLut::InPlace(lut), true) => store_row(acc, dst, step, |a, old, _| {
-            rq.apply(a).max(0).saturating_add(lut[old as u8 as usize])
-        }),
-        (SkipLut::InPlace(lut), false) => store_row(acc, dst, step, |a, old, _| {
-            rq.apply(a).saturating_add(lut[old as u8 as usize])
-        }),
-        (SkipLut::Separate(s, lut), _) => {
-            let skip = s.get(start..end).unwrap_or(&[]);
-            store_row(acc, dst, step, |a, _, i| {
-                let t = rq.apply(a);
-                let t = if relu { t.max(0) } else { t };
-                t.saturating_add(skip.get(i).map_or(0, |&v| lut[v as u8 as usize]))
-            })
-        }
-    }
-}
-
-/// `dst[q · step] = clamp(f(acc[q], dst[q · step], q · step))` for every `q`.
-#[inline(always)]
-fn store_row(acc: &[i32], dst: &mut [i8], step: usize, f: impl Fn(i32, i8, usize) -> i32) {
-    if step == 1 {
-        for (i, (d, &a)) in dst.iter_mut().zip(acc).enumerate() {
-            *d = f(a, *d, i).clamp(-128, 127) as i8;
-        }
-    } else {
-        for (q, (d, &a)) in dst.iter_mut().step_by(step.max(1)).zip(acc).enumerate() {
-            *d = f(a, *d, q * step).clamp(-128, 127) as i8;
-        }
+    // One loop for every case: the hot rows take `row_s8` above or, a whole line at a time,
+    // [`requant_rows`]; this serves the rest (strided stores, a separate skip operand, the
+    // exact requantisation) in little code.
+    let separate = match skip {
+        SkipLut::Separate(s, _) => s.get(start..end).unwrap_or(&[]),
+        _ => &[],
+    };
+    // A step of 0 names one output, the first accumulator's.
+    let count = if step == 0 { 1 } else { acc.len() };
+    for (q, &a) in acc.iter().take(count).enumerate() {
+        let i = q * step;
+        let Some(d) = dst.get_mut(i) else {
+            break;
+        };
+        let t = rq.apply(a);
+        let t = if relu { t.max(0) } else { t };
+        let t = match skip {
+            SkipLut::None => t,
+            SkipLut::InPlace(lut) => t.saturating_add(lut[*d as u8 as usize]),
+            SkipLut::Separate(_, lut) => {
+                t.saturating_add(separate.get(i).map_or(0, |&v| lut[v as u8 as usize]))
+            }
+        };
+        *d = t.clamp(-128, 127) as i8;
     }
 }
 
@@ -280,9 +280,99 @@ impl RowIn {
 /// Most positions of one row (a row is at most [`MAX_ROW`] input columns).
 const MAX_POSITIONS: usize = MAX_ROW;
 
-/// Accumulators of one row of two channels (one spare entry: the unpaired last position's
-/// second result lands there).
-pub(crate) type RowAcc = [[i32; MAX_POSITIONS + 1]; 2];
+/// Accumulators of one line: a row per channel, `width` apart, when every channel's row fits
+/// ([`AccRows::flat`]); else two rows of [`MAX_POSITIONS`] + 1, reused by each channel pair.
+pub(crate) type RowAcc = [i32; 2 * (MAX_POSITIONS + 1)];
+
+/// How a line's channel pairs use the accumulators: one row per channel, so that a single
+/// call requantises every channel of the line ([`requant_rows`]), or the two shared rows.
+#[derive(Clone, Copy)]
+struct AccRows {
+    width: usize,
+    flat: bool,
+}
+
+impl AccRows {
+    /// Rows of `width` for `oc` channels (an odd last channel's pair partner is a spare row):
+    /// flat when they fit and the row loop can take every channel at once (Helium, the fast
+    /// requantisation's words, step-1 stores, a skip read in place or none).
+    fn new(oc: usize, width: usize, words: bool, step: usize, skip: SkipLut<'_>) -> Self {
+        let fits = oc.div_ceil(2) * 2 * width <= 2 * (MAX_POSITIONS + 1);
+        let whole = matches!(skip, SkipLut::None | SkipLut::InPlace(_));
+        // Only Helium has a row loop that takes many rows in one call; elsewhere a row per
+        // call measured faster (the Cortex-M7's SMLAD build: 0.9 M instructions a map).
+        let one_call = cfg!(all(feature = "mve", target_arch = "arm"));
+        AccRows {
+            width,
+            flat: one_call && fits && words && step == 1 && whole,
+        }
+    }
+
+    /// Channel `o`'s and channel `o + 1`'s rows (empty if out of range: the dot-product
+    /// calls then refuse them).
+    #[inline(always)]
+    fn pair(self, acc: &mut RowAcc, o: usize) -> (&mut [i32], &mut [i32]) {
+        let (w, o) = if self.flat {
+            (self.width, o)
+        } else {
+            (MAX_POSITIONS + 1, 0)
+        };
+        match acc.split_at_mut_checked((o + 1) * w) {
+            Some((a, b)) => {
+                let b_len = w.min(b.len());
+                (a.get_mut(o * w..).unwrap_or(&mut []), &mut b[..b_len])
+            }
+            None => (&mut [], &mut []),
+        }
+    }
+}
+
+/// The five-word fast requantisation of every channel of `rq`, if each has one.
+#[inline(always)]
+fn row_words<R: Apply>(rq: &[R]) -> Option<[[i32; 5]; MAX_FAST_CHANNELS]> {
+    if rq.len() > MAX_FAST_CHANNELS {
+        return None;
+    }
+    let mut t = [[0; 5]; MAX_FAST_CHANNELS];
+    for (t, &r) in t.iter_mut().zip(rq) {
+        *t = r.words()?;
+    }
+    Some(t)
+}
+
+/// The first `channels` rows of a flat line of accumulators ([`AccRows`]) requantised, row
+/// `c` into `out[c·plane + base ..]`: one call for all of them where the row loop takes it,
+/// else a [`requant_row`] per channel.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn requant_rows<R: Apply>(
+    acc: &[i32],
+    (width, channels): (usize, usize),
+    rq: &[R],
+    words: crate::dsp::RowWords<'_>,
+    relu: bool,
+    skip: SkipLut<'_>,
+    out: &mut [i8],
+    (base, plane): (usize, usize),
+) {
+    let lut = match skip {
+        SkipLut::InPlace(lut) => Some(lut),
+        _ => None,
+    };
+    if let (Some(acc), Some(words), Some(dst)) = (
+        acc.get(..channels * width),
+        words.get(0..channels),
+        out.get_mut(base..),
+    ) {
+        if crate::dsp::requant_rows_s8(acc, dst, words, (width, plane), relu, lut) {
+            return;
+        }
+    }
+    for (c, &r) in rq.iter().take(channels).enumerate() {
+        let row = acc.get(c * width..(c + 1) * width).unwrap_or(&[]);
+        requant_row(row, r, relu, skip, out, base + c * plane, 1);
+    }
+}
 
 /// The line engine's scratch (expanded weights, line buffer, accumulator rows, about 20 KiB):
 /// a kernel call writes every word of it that it reads, so one scratch serves any number of
@@ -321,7 +411,7 @@ impl LineScratch {
         Self {
             wbuf: [0; WEIGHT_WORDS],
             line: [0; LINE_WORDS],
-            acc: [[0; MAX_POSITIONS + 1]; 2],
+            acc: [0; 2 * (MAX_POSITIONS + 1)],
             kept: KeptWeights {
                 on: false,
                 key: None,
@@ -370,34 +460,44 @@ pub(crate) fn row<R: Apply>(
     out: &mut [i8],
     rout: RowOut,
     acc: &mut RowAcc,
+    words: Option<crate::dsp::RowWords<'_>>,
 ) {
     let (n, positions) = (rin.words, rin.positions);
     let oc = bias.len().min(rq.len());
+    let rows = AccRows::new(oc, positions, words.is_some(), rout.step, skip);
     let mut o = 0;
     while o < oc {
         let two = o + 1 < oc;
         let Some(w) = weights.get(o * n..(o + 2) * n) else {
-            return;
+            break;
         };
         let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
-        let [acc0, acc1] = &mut *acc;
-        if !rin.plan.run(line, w, [b0, b1], (acc0, acc1)) {
-            return;
+        let (acc0, acc1) = rows.pair(acc, o);
+        if !rin.plan.run(line, w, [b0, b1], (&mut *acc0, &mut *acc1)) {
+            break;
         }
-        let at = |o: usize| o * rout.plane + rout.base;
-        requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
-        if two {
-            requant_row(
-                &acc1[..positions],
-                rq[o + 1],
-                relu,
-                skip,
-                out,
-                at(o + 1),
-                rout.step,
-            );
+        if !rows.flat {
+            let at = |o: usize| o * rout.plane + rout.base;
+            requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
+            if two {
+                requant_row(
+                    &acc1[..positions],
+                    rq[o + 1],
+                    relu,
+                    skip,
+                    out,
+                    at(o + 1),
+                    rout.step,
+                );
+            }
         }
         o += 2;
+    }
+    // The channels whose dot products ran, all at once.
+    if let (true, Some(words)) = (rows.flat, words) {
+        let lines = (positions, o.min(oc));
+        let at = (rout.base, rout.plane);
+        requant_rows(acc, lines, rq, words, relu, skip, out, at);
     }
 }
 
@@ -759,6 +859,10 @@ pub(crate) fn conv<R: Apply>(
     } = scratch;
     let out_plane = od * oh * ow;
     let rin = RowIn::new(ow, sw * vp / 2, n);
+    let table = row_words(rq);
+    let words = table
+        .as_ref()
+        .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
     let mut o0 = 0;
     while o0 < oc {
         let g = group.min(oc - o0);
@@ -823,6 +927,7 @@ pub(crate) fn conv<R: Apply>(
                         step: 1,
                     },
                     acc,
+                    words.and_then(|w| w.get(o0..o0 + g)),
                 );
             }
         }
@@ -1098,6 +1203,11 @@ pub(crate) fn transposed<R: Apply>(
     let key = layer.map(|l| (l, shape.kernel, shape.stride, ic, oc));
     let keep = scratch.kept.start(key, all, sd, sh);
     let mut phase_base = 0;
+    let table = row_words(rq);
+    let words = table
+        .as_ref()
+        .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
+    let rows = AccRows::new(oc, ow, words.is_some(), 1, skip);
     let LineScratch {
         wbuf,
         line,
@@ -1178,7 +1288,7 @@ pub(crate) fn transposed<R: Apply>(
                     while o < oc {
                         let two = o + 1 < oc;
                         let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
-                        let [acc0, acc1] = &mut *acc;
+                        let (acc0, acc1) = rows.pair(acc, o);
                         let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
                         for (&(x0, nx, tx, wofs, start), plan) in phases {
                             if nx == 0 {
@@ -1187,22 +1297,30 @@ pub(crate) fn transposed<R: Apply>(
                             let n = tx * vw;
                             let w = wbuf.get(wofs + o * n..wofs + (o + 2) * n).unwrap_or(&[]);
                             let x = line.get(start..vw * cols).unwrap_or(&[]);
-                            plan.run(x, w, [b0, b1], (&mut acc0[x0..], &mut acc1[x0..]));
+                            let a0 = acc0.get_mut(x0..).unwrap_or(&mut []);
+                            let a1 = acc1.get_mut(x0..).unwrap_or(&mut []);
+                            plan.run(x, w, [b0, b1], (a0, a1));
                         }
-                        let at = |o: usize| o * out_plane + base;
-                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
-                        if two {
-                            requant_row(
-                                &acc1[..ow],
-                                rq[o + 1],
-                                params.relu,
-                                skip,
-                                output,
-                                at(o + 1),
-                                1,
-                            );
+                        if !rows.flat {
+                            let at = |o: usize| o * out_plane + base;
+                            requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                            if two {
+                                requant_row(
+                                    &acc1[..ow],
+                                    rq[o + 1],
+                                    params.relu,
+                                    skip,
+                                    output,
+                                    at(o + 1),
+                                    1,
+                                );
+                            }
                         }
                         o += 2;
+                    }
+                    if let (true, Some(words)) = (rows.flat, words) {
+                        let at = (base, out_plane);
+                        requant_rows(acc, (ow, oc), rq, words, params.relu, skip, output, at);
                     }
                 }
             }
