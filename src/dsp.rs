@@ -271,6 +271,37 @@ impl RowPlan {
         let (step, positions, n) = (self.step, self.positions, self.n);
         dot2x2_row_checked(x, step, positions, w, n, bias, (acc0, acc1, self.astep))
     }
+
+    /// Every channel pair `k < bias.len()` of a line: [`RowPlan::run`] with the weights
+    /// `w[k·wstride ..]`, biases `bias[k]` and accumulator rows `acc[2k·rstride + first ..]`
+    /// and `acc[(2k + 1)·rstride + first ..]`; with Helium one call for every pair
+    /// ([`crate::mve::PairRows::run_channels`]). Returns false when a slice is too short for
+    /// a pair (earlier pairs may have been written). Not inlined: the line engines share it.
+    #[inline(never)]
+    pub fn run_channels(
+        &self,
+        x: &[u32],
+        (w, wstride): (&[u32], usize),
+        bias: &[[i32; 2]],
+        acc: &mut [i32],
+        (rstride, first): (usize, usize),
+    ) -> bool {
+        #[cfg(all(feature = "mve", target_arch = "arm"))]
+        if let Some(pairs) = &self.pairs {
+            return pairs.run_channels(x, (w, wstride), bias, acc, (rstride, first));
+        }
+        for (k, &b) in bias.iter().enumerate() {
+            let Some((head, tail)) = acc.split_at_mut_checked((2 * k + 1) * rstride + first) else {
+                return false;
+            };
+            let a0 = head.get_mut(2 * k * rstride + first..).unwrap_or(&mut []);
+            let wk = w.get(k * wstride..).unwrap_or(&[]);
+            if !self.run(x, wk, b, (a0, tail)) {
+                return false;
+            }
+        }
+        true
+    }
 }
 
 /// [`dot2x2_row`] for the shapes [`RowPlan`] does not hand to Helium's pair loop alone: the
@@ -472,7 +503,8 @@ pub fn requant_max_row(
         }
     }
     let len = acc.len().min(out.len());
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    // With Helium only the last 1 to 3 values are left: the plain loop below, in less code.
+    #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if len > 0 && left1 < 32 && right < 32 {
         let mut mx = max as i32;
         // SAFETY: reads acc[..len] and writes out[..len], both in bounds (len is the smaller
@@ -626,14 +658,16 @@ pub fn requant_row_s8(
     if left1 < 32 && right < 32 {
         let quads = acc.len().min(out.len()) / 4;
         if quads > 0 {
-            let rq = (multiplier, left1, right, half, neg);
-            crate::mve::requant_row_quads(acc, out, rq, relu, skip, quads);
+            // One row of the whole-line loop (shifts below 32, checked here).
+            let words = [[multiplier, left1 as i32, right as i32, half, neg]];
+            crate::mve::requant_rows_quads(acc, out, &words, (quads, 0), relu, skip);
             acc = &acc[4 * quads..];
             out = &mut out[4 * quads..];
         }
     }
     let len = acc.len().min(out.len());
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
+    // With Helium only the last 1 to 3 values are left: the plain loop below, in less code.
+    #[cfg(all(feature = "dsp", not(feature = "mve"), target_arch = "arm"))]
     if len > 0 && left1 < 32 && right < 32 {
         // SAFETY: reads acc[..len], reads and writes out[..len] (len is the smaller length,
         // > 0; the loop ends exactly at acc[len]); the skip table is read at an unsigned

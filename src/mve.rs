@@ -330,6 +330,201 @@ impl PairRows {
         self.pairs
     }
 
+    /// Whether the loop keeps its state in registers: `n ≡ 0 mod 4` and accumulators one or
+    /// two words apart.
+    #[inline(always)]
+    fn in_registers(&self) -> bool {
+        self.n.is_multiple_of(4) && (self.astep == 1 || self.astep == 2)
+    }
+
+    /// The pair loop with its state in registers, for every channel pair `k < bias.len()`:
+    /// weights from `w + k·wstep` bytes, biases `bias[k]`, accumulators from `a0` and `a1`
+    /// for the first pair and `a0 + 2k·rstep`, `a0 + (2k + 1)·rstep` bytes after it.
+    ///
+    /// # Safety
+    ///
+    /// `in_registers()`, `bias` not empty, and for every pair `k`: `x` readable for
+    /// `x_len` words, the weights for `w_len` words and both accumulator rows writable for
+    /// `acc_len` words (in the caller's allocations).
+    #[allow(unsafe_code)]
+    #[inline(never)]
+    unsafe fn pairs_in_registers(
+        &self,
+        x: *const u32,
+        w: *const u32,
+        bias: &[[i32; 2]],
+        (a0, a1): (*mut i32, *mut i32),
+        (wstep, rstep): (usize, usize),
+    ) {
+        let [b0, b1] = bias.first().copied().unwrap_or([0, 0]);
+        // The loop's state (words): biases, inner iterations, weight bytes per pair (8n), the
+        // advance from a pair's end to the next pair's start, channel pairs left, the x
+        // pointers' start, the weight step, the first row's start, the row step, the next
+        // pair's biases, position pairs.
+        let mut st = [
+            b0 as u32,
+            b1 as u32,
+            (self.n / 4) as u32,
+            (self.n * 8) as u32,
+            (2 * self.step * 4).wrapping_sub(self.n * 4) as u32,
+            bias.len() as u32,
+            x as u32,
+            x.wrapping_add(self.step) as u32,
+            wstep as u32,
+            a0 as u32,
+            rstep as u32,
+            bias.as_ptr().wrapping_add(1) as u32,
+            self.pairs as u32,
+        ];
+        macro_rules! pairs_in_registers {
+            ($($store:literal),*) => {
+                core::arch::asm!(
+                    "2:",
+                    "ldr   lr, [{st}, #8]",
+                    "dls   lr, lr",
+                    "3:",
+                    "vldrw.u32    q0, [{x0}], #16",
+                    "vldrw.u32    q1, [{x1}], #16",
+                    "vld20.32     {{q2, q3}}, [{w}]",
+                    "vld21.32     {{q2, q3}}, [{w}]!",
+                    "vmlava.s16   r0, q0, q2",
+                    "vmlava.s16   r2, q1, q2",
+                    "vmlava.s16   r4, q0, q3",
+                    "vmlava.s16   r8, q1, q3",
+                    "le    lr, 3b",
+                    $($store,)*
+                    // Weights back to the pair's start, inputs on to the next pair's.
+                    "ldrd  r0, r2, [{st}, #12]",
+                    "sub   {w}, {w}, r0",
+                    "add   {x0}, {x0}, r2",
+                    "add   {x1}, {x1}, r2",
+                    "ldrd  r0, r4, [{st}]",
+                    "mov   r2, r0",
+                    "mov   r8, r4",
+                    "subs  {pairs}, {pairs}, #1",
+                    "bne   2b",
+                    // The next channel pair: its weights, rows and biases; the row again.
+                    "ldr   r0, [{st}, #20]",
+                    "subs  r0, r0, #1",
+                    "beq   4f",
+                    "str   r0, [{st}, #20]",
+                    "ldrd  {x0}, {x1}, [{st}, #24]",
+                    "ldr   r0, [{st}, #32]",
+                    "add   {w}, {w}, r0",
+                    "ldrd  {a0}, r0, [{st}, #36]",
+                    "add   {a0}, {a0}, r0, lsl #1",
+                    "str   {a0}, [{st}, #36]",
+                    "add   {a1}, {a0}, r0",
+                    "ldr   r2, [{st}, #44]",
+                    "ldrd  r0, r4, [r2], #8",
+                    "str   r2, [{st}, #44]",
+                    "strd  r0, r4, [{st}]",
+                    "mov   r2, r0",
+                    "mov   r8, r4",
+                    "ldr   {pairs}, [{st}, #48]",
+                    "b     2b",
+                    "4:",
+                    st = in(reg) st.as_mut_ptr(),
+                    x0 = inout(reg) x => _,
+                    x1 = inout(reg) x.add(self.step) => _,
+                    w = inout(reg) w => _,
+                    a0 = inout(reg) a0 => _,
+                    a1 = inout(reg) a1 => _,
+                    pairs = inout(reg) self.pairs => _,
+                    inout("r0") b0 => _,
+                    inout("r2") b0 => _,
+                    inout("r4") b1 => _,
+                    inout("r8") b1 => _,
+                    out("lr") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                    options(nostack),
+                )
+            };
+        }
+        // SAFETY (the caller's conditions): pair p of a channel pair reads x[2p·step ..][..n]
+        // and x[(2p + 1)·step ..][..n] (within x_len words; n / 4 ≥ 1 inner iterations leave
+        // the x pointers n words and the weight pointer 2n words on, undone by the 8n-byte
+        // step back and the 2·step − n word advance) and stores to acc[2p·astep] and
+        // acc[(2p + 1)·astep] of its two rows (within acc_len words). A next channel pair
+        // starts again from the saved x pointers, its weights wstep bytes on, its rows 2·rstep
+        // bytes on and its biases from the next entry of `bias` (the count in `st` stops the
+        // loop after bias.len() pairs). `st` is a live local array of 13 words.
+        unsafe {
+            if self.astep == 1 {
+                pairs_in_registers!("strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8");
+            } else {
+                pairs_in_registers!(
+                    "str   r0, [{a0}], #8",
+                    "str   r2, [{a0}], #8",
+                    "str   r4, [{a1}], #8",
+                    "str   r8, [{a1}], #8"
+                );
+            }
+        }
+    }
+
+    /// Every channel pair `k < bias.len()` of a line in one call: what [`PairRows::run`]
+    /// computes with weights `w[k·wstride ..]`, biases `bias[k]` and accumulator rows
+    /// `acc[2k·rstride + first ..]` and `acc[(2k + 1)·rstride + first ..]`. One call per
+    /// line instead of one per channel pair (about 25 instructions per further pair against
+    /// 90). Returns false, doing nothing, when a slice is too short for every pair.
+    pub fn run_channels(
+        &self,
+        x: &[u32],
+        (w, wstride): (&[u32], usize),
+        bias: &[[i32; 2]],
+        acc: &mut [i32],
+        (rstride, first): (usize, usize),
+    ) -> bool {
+        let Some(last) = bias.len().checked_sub(1) else {
+            return true;
+        };
+        let fits = x.len() >= self.x_len
+            && wstride <= usize::MAX / 8
+            && rstride <= usize::MAX / 8
+            && last
+                .checked_mul(wstride)
+                .and_then(|a| a.checked_add(self.w_len))
+                .is_some_and(|e| e <= w.len())
+            && (2 * last + 1)
+                .checked_mul(rstride)
+                .and_then(|a| a.checked_add(first))
+                .and_then(|a| a.checked_add(self.acc_len))
+                .is_some_and(|e| e <= acc.len());
+        if !fits {
+            return false;
+        }
+        if !self.in_registers() {
+            for (k, &b) in bias.iter().enumerate() {
+                let Some((head, tail)) = acc.split_at_mut_checked((2 * k + 1) * rstride + first)
+                else {
+                    return false;
+                };
+                let a0 = head.get_mut(2 * k * rstride + first..).unwrap_or(&mut []);
+                self.run(x, w.get(k * wstride..).unwrap_or(&[]), b, (a0, tail));
+            }
+            return true;
+        }
+        let a0 = acc.as_mut_ptr().wrapping_add(first);
+        let a1 = a0.wrapping_add(rstride);
+        // SAFETY: in_registers() (checked); for every pair k ≤ last the weights from
+        // k·wstride run w_len words within w, the rows from 2k·rstride + first and
+        // (2k + 1)·rstride + first run acc_len words within acc, and x holds x_len words
+        // (checked above); the steps are in bytes.
+        #[allow(unsafe_code)]
+        unsafe {
+            self.pairs_in_registers(
+                x.as_ptr(),
+                w.as_ptr(),
+                bias,
+                (a0, a1),
+                (wstride * 4, rstride * 4),
+            );
+        }
+        true
+    }
+
     /// One row: what [`dot2x2_row_pairs`] computes for this shape. Returns false, doing
     /// nothing, when a slice is shorter than the shape needs.
     #[inline(never)]
@@ -355,78 +550,15 @@ impl PairRows {
             return false;
         }
         // Accumulators one or two words apart (the line engine's rows, the transposed
-        // engine's x phases of stride 2), `n` a multiple of 4: the loop below with its state in
+        // engine's x phases of stride 2), `n` a multiple of 4: the loop with its state in
         // registers, about 13 instructions per pair around the inner loop.
-        if n % 4 == 0 && (astep == 1 || astep == 2) {
-            let st = [
-                bias[0] as u32,
-                bias[1] as u32,
-                (n / 4) as u32,
-                (n * 8) as u32,
-                (2 * step * 4).wrapping_sub(n * 4) as u32,
-            ];
-            macro_rules! pairs_in_registers {
-                ($($store:literal),*) => {
-                    core::arch::asm!(
-                        "2:",
-                        "ldr   lr, [{st}, #8]",
-                        "dls   lr, lr",
-                        "3:",
-                        "vldrw.u32    q0, [{x0}], #16",
-                        "vldrw.u32    q1, [{x1}], #16",
-                        "vld20.32     {{q2, q3}}, [{w}]",
-                        "vld21.32     {{q2, q3}}, [{w}]!",
-                        "vmlava.s16   r0, q0, q2",
-                        "vmlava.s16   r2, q1, q2",
-                        "vmlava.s16   r4, q0, q3",
-                        "vmlava.s16   r8, q1, q3",
-                        "le    lr, 3b",
-                        $($store,)*
-                        // Weights back to the pair's start, inputs on to the next pair's.
-                        "ldrd  r0, r2, [{st}, #12]",
-                        "sub   {w}, {w}, r0",
-                        "add   {x0}, {x0}, r2",
-                        "add   {x1}, {x1}, r2",
-                        "ldrd  r0, r4, [{st}]",
-                        "mov   r2, r0",
-                        "mov   r8, r4",
-                        "subs  {pairs}, {pairs}, #1",
-                        "bne   2b",
-                        st = in(reg) st.as_ptr(),
-                        x0 = inout(reg) x.as_ptr() => _,
-                        x1 = inout(reg) x.as_ptr().add(step) => _,
-                        w = inout(reg) w.as_ptr() => _,
-                        a0 = inout(reg) acc0.as_mut_ptr() => _,
-                        a1 = inout(reg) acc1.as_mut_ptr() => _,
-                        pairs = inout(reg) pairs => _,
-                        inout("r0") bias[0] => _,
-                        inout("r2") bias[0] => _,
-                        inout("r4") bias[1] => _,
-                        inout("r8") bias[1] => _,
-                        out("lr") _,
-                        out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                        out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                        options(nostack),
-                    )
-                };
-            }
-            // SAFETY: as for the loop below (same reads; n / 4 ≥ 1 inner iterations per pair,
-            // which leave the x pointers n words and the weight pointer 2n words on, undone by
-            // the 8n-byte step back and the 2·step − n word advance). Pair p stores to
-            // acc[2p·astep] and acc[(2p + 1)·astep], in bounds (the lengths `new` computed, checked above); `st` is a live
-            // local array of 5 words.
+        if self.in_registers() {
+            let (a0, a1) = (acc0.as_mut_ptr(), acc1.as_mut_ptr());
+            // SAFETY: the slices are at least as long as `new` computed (checked above), one
+            // channel pair (no step to a next pair's weights or rows).
             #[allow(unsafe_code)]
             unsafe {
-                if astep == 1 {
-                    pairs_in_registers!("strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8");
-                } else {
-                    pairs_in_registers!(
-                        "str   r0, [{a0}], #8",
-                        "str   r2, [{a0}], #8",
-                        "str   r4, [{a1}], #8",
-                        "str   r8, [{a1}], #8"
-                    );
-                }
+                self.pairs_in_registers(x.as_ptr(), w.as_ptr(), &[bias], (a0, a1), (0, 0));
             }
             return true;
         }
@@ -537,104 +669,14 @@ impl PairRows {
     }
 }
 
-/// The four-value blocks of [`crate::dsp::requant_row_s8`]: for `i < 4 · quads`,
-/// `t = r(acc[i])` with `x = VRMULH(acc << left1, multiplier)` (= `SMMULR`) and
-/// `r = (x + half + (x >> 31 & neg)) >> right`, then with `relu` `t = max(t, 0)`, with a skip
-/// table `t = t +sat skip[out[i] as u8]` (the old value, gathered by `VLDRW … UXTW #2`), and
-/// `out[i] = clamp(t, −128, 127)`: about 3.5 instructions per value (the `dsp` loop takes
-/// 11–15). Does nothing unless `acc` and `out` hold `4 · quads` values and `left1`, `right`
-/// are below 32.
-#[inline(always)]
-pub fn requant_row_quads(
-    acc: &[i32],
-    out: &mut [i8],
-    (multiplier, left1, right, half, neg): (i32, u32, u32, i32, i32),
-    relu: bool,
-    skip: Option<&[i32; 256]>,
-    quads: usize,
-) {
-    let n = quads.saturating_mul(4);
-    if quads == 0 || acc.len() < n || out.len() < n || left1 >= 32 || right >= 32 {
-        return;
-    }
-    let lut = skip.map_or(core::ptr::null(), |l| l.as_ptr());
-    // SAFETY: block i reads acc[4i..4i + 4] and reads and writes out[4i..4i + 4], in bounds
-    // for i < quads (checked above); the skip table is gathered at unsigned byte indices
-    // < 256 (only in the skip variants, where `lut` is the table). Shifts by registers whose
-    // magnitude is below 32. quads ≥ 1, so `DLS`/`LE` run the loop exactly quads times.
-    #[allow(unsafe_code)]
-    unsafe {
-        macro_rules! row {
-            ($relu:literal, $skip1:literal, $skip2:literal, $skip3:literal) => {
-                core::arch::asm!(
-                    "vdup.32      q4, {m}",
-                    "vdup.32      q5, {neg}",
-                    "vmov.i32     q6, #127",
-                    "vmvn.i32     q7, #127",
-                    "dls   lr, {quads}",
-                    "2:",
-                    "vldrw.u32    q0, [{ap}], #16",
-                    "vshl.s32     q0, {l1}",
-                    "vrmulh.s32   q0, q0, q4",
-                    "vshr.s32     q1, q0, #31",
-                    "vand         q1, q1, q5",
-                    "vadd.i32     q0, q0, {half}",
-                    "vadd.i32     q0, q0, q1",
-                    "vshl.s32     q0, {nr}",
-                    $relu,
-                    $skip1,
-                    $skip2,
-                    $skip3,
-                    "vmin.s32     q0, q0, q6",
-                    "vmax.s32     q0, q0, q7",
-                    "vstrb.32     q0, [r1], #4",
-                    "le    lr, 2b",
-                    "@ {lut}",
-                    ap = inout(reg) acc.as_ptr() => _,
-                    // The narrowing byte store takes only a low register as its base.
-                    inout("r1") out.as_mut_ptr() => _,
-                    quads = in(reg) quads,
-                    l1 = in(reg) left1,
-                    nr = in(reg) -(right as i32),
-                    m = in(reg) multiplier,
-                    neg = in(reg) neg,
-                    half = in(reg) half,
-                    lut = in(reg) lut,
-                    out("lr") _,
-                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-                    out("d12") _, out("d13") _, out("d14") _, out("d15") _,
-                    options(nostack),
-                )
-            };
-        }
-        // ReLU: `VMAX` with zero (q2, zeroed first); the in-place skip: the old bytes,
-        // widened unsigned, index the table, `VQADD` adds with saturation.
-        match (relu, skip.is_some()) {
-            (false, false) => row!("", "", "", ""),
-            (true, false) => row!("vmov.i32 q2, #0", "vmax.s32 q0, q0, q2", "", ""),
-            (false, true) => row!(
-                "vldrb.u32 q1, [r1]",
-                "vldrw.u32 q2, [{lut}, q1, uxtw #2]",
-                "vqadd.s32 q0, q0, q2",
-                ""
-            ),
-            (true, true) => row!(
-                "vmov.i32 q2, #0",
-                "vmax.s32 q0, q0, q2",
-                "vldrb.u32 q1, [r1]",
-                "vldrw.u32 q2, [{lut}, q1, uxtw #2]\n vqadd.s32 q0, q0, q2"
-            ),
-        }
-    }
-}
-
-/// [`requant_row_quads`] for rows one after another, one call per line of every channel:
-/// row `c < params.len()` requantises `acc[c·4·quads ..][..4·quads]` with `params[c]`
-/// (`[multiplier, left1, right, half, neg]`, as [`requant_row_quads`]'s tuple) into
-/// `out[c·plane ..][..4·quads]`; about 12 instructions per row around the 3.5 per value (the
-/// row calls took about 60). Returns false, writing nothing, unless `quads ≥ 1` and every
+/// The four-value blocks of [`crate::dsp::requant_rows_s8`] (and of
+/// [`crate::dsp::requant_row_s8`], one row): row `c < params.len()` requantises
+/// `acc[c·4·quads ..][..4·quads]` with `params[c] = [multiplier, left1, right, half, neg]`
+/// into `out[c·plane ..][..4·quads]`: `t = r(acc[i])` with `x = VRMULH(acc << left1,
+/// multiplier)` (= `SMMULR`) and `r = (x + half + (x >> 31 & neg)) >> right`, then with
+/// `relu` `t = max(t, 0)`, with a skip table `t = t +sat skip[out[i] as u8]` (the old value,
+/// gathered by `VLDRW … UXTW #2`), and `out[i] = clamp(t, −128, 127)`: about 3.5
+/// instructions per value and 12 per row (a call per row took about 60). Returns false, writing nothing, unless `quads ≥ 1` and every
 /// row's slices fit. A `left1` or `right` of 32 or more shifts as `VSHL` does (the callers
 /// pass [`crate::dsp::RowWords`], whose shifts are below 32).
 pub fn requant_rows_quads(

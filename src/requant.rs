@@ -192,6 +192,10 @@ pub trait Apply: Copy {
     /// `MBQM(acc, M, shift)`.
     fn apply(self, acc: i32) -> i32;
 
+    /// Whether [`Apply::words`] can be `Some`: a constant, so that the code of the whole-line
+    /// paths is left out where it cannot run.
+    const HAS_WORDS: bool = false;
+
     /// The five words [`crate::dsp::requant_rows_s8`] takes (multiplier, left1, right, half,
     /// neg), if this requantisation is that row loop's arithmetic.
     #[inline(always)]

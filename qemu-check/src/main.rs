@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -457,6 +457,49 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if plan.run(&x[..need - 1], &w, bias, (&mut s0, &mut s1)) || s0 != [7; 32] || s1 != [7; 32]
         {
             bad += 1;
+        }
+        // RowPlan::run_channels: every channel pair of a line in one call (weights `wstride`
+        // apart, rows `rstride` apart from `first`), against the plain dot products.
+        let pairs_c = 1 + (rng.next() % 4) as usize;
+        let wstride = 2 * n + (rng.next() % 3) as usize;
+        let first = (rng.next() % 3) as usize;
+        let rstride = first + (positions - 1) * astep + 1 + (rng.next() % 3) as usize;
+        let mut biases = [[0i32; 2]; 4];
+        for b in biases.iter_mut() {
+            *b = [rng.next() as i32 >> 8, rng.next() as i32 >> 8];
+        }
+        if (pairs_c - 1) * wstride + 2 * n <= w.len() && 2 * pairs_c * rstride <= 256 {
+            let mut rows = [0x5a5a_5a5ai32; 256];
+            let ok = plan.run_channels(
+                &x[shift..],
+                (&w, wstride),
+                &biases[..pairs_c],
+                &mut rows,
+                (rstride, first),
+            );
+            let plain_c = |k: usize, q: usize, c: usize| -> i32 {
+                let mut a = biases[k][c];
+                for j in 0..n {
+                    let (xv, wv) = (x[shift + q * step + j], w[k * wstride + 2 * j + c]);
+                    let lo = (xv as u16 as i16 as i32).wrapping_mul(wv as u16 as i16 as i32);
+                    let hi = ((xv >> 16) as u16 as i16 as i32)
+                        .wrapping_mul((wv >> 16) as u16 as i16 as i32);
+                    a = a.wrapping_add(lo).wrapping_add(hi);
+                }
+                a
+            };
+            let at = |k: usize, c: usize, q: usize| (2 * k + c) * rstride + first + q * astep;
+            let right = (0..pairs_c).all(|k| {
+                (0..positions).all(|q| (0..2).all(|c| rows[at(k, c, q)] == plain_c(k, q, c)))
+            });
+            let touched = |i: usize| {
+                (0..pairs_c).any(|k| (0..2).any(|c| (0..positions).any(|q| at(k, c, q) == i)))
+            };
+            let rest = (0..256).all(|i| touched(i) || rows[i] == 0x5a5a_5a5a);
+            runs += 1;
+            if !(ok && right && rest) {
+                bad += 1;
+            }
         }
         // pack_rows: a line column of two rows, with and without offsets.
         let len = (rng.next() % 70) as usize;

@@ -112,9 +112,11 @@ fn engine(
 ) {
     let (params, bound) = (checked.params(), checked.bound());
     let s3 = line_shape(shape);
-    if conv_fits(&s3) {
-        run_conv(&s3, input, params, bound, output, scratch);
-    } else if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= COL_LEN {
+    // The line engine where it takes the shape and the fast requantisation fits.
+    if conv_fits(&s3) && run_conv(&s3, input, params, bound, output, scratch) {
+        return;
+    }
+    if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= COL_LEN {
         // Axes [H, W, 1] used as [D, H, W]: rows of length 1 in the gather, same sums.
         im2col_engine(shape, input, params, output);
     } else {

@@ -113,9 +113,11 @@ fn engine(
     scratch: &mut LineScratch,
 ) {
     let (params, bound) = (checked.params(), checked.bound());
-    if conv_fits(shape) {
-        run_conv(shape, input, params, bound, output, scratch);
-    } else if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
+    // The line engine where it takes the shape and the fast requantisation fits.
+    if conv_fits(shape) && run_conv(shape, input, params, bound, output, scratch) {
+        return;
+    }
+    if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {
         im2col_engine(shape, input, params, output);
     } else {
         rows_engine(shape, input, params, output);

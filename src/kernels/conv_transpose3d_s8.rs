@@ -163,10 +163,11 @@ fn engine(
     scratch: &mut LineScratch,
 ) {
     let (params, bound) = (checked.params(), checked.bound());
-    if super::line::transposed_fits(shape) {
-        let layer = checked.layer();
-        super::line::run_transposed(shape, input, params, bound, layer, &skip, output, scratch);
-    } else {
+    let layer = checked.layer();
+    // The line engine, where it takes the shape and the fast requantisation fits.
+    let done = super::line::transposed_fits(shape)
+        && super::line::run_transposed(shape, input, params, bound, layer, &skip, output, scratch);
+    if !done {
         taps_engine(shape, input, params, &skip, output);
     }
 }

@@ -127,6 +127,8 @@ impl Apply for RowRequant {
         )
     }
 
+    const HAS_WORDS: bool = true;
+
     #[inline(always)]
     fn words(self) -> Option<[i32; 5]> {
         // left1 ≤ 31 and right ≤ 31 by construction (`new`).
@@ -330,7 +332,7 @@ impl AccRows {
 /// The five-word fast requantisation of every channel of `rq`, if each has one.
 #[inline(always)]
 fn row_words<R: Apply>(rq: &[R]) -> Option<[[i32; 5]; MAX_FAST_CHANNELS]> {
-    if rq.len() > MAX_FAST_CHANNELS {
+    if !R::HAS_WORDS || rq.len() > MAX_FAST_CHANNELS {
         return None;
     }
     let mut t = [[0; 5]; MAX_FAST_CHANNELS];
@@ -338,6 +340,17 @@ fn row_words<R: Apply>(rq: &[R]) -> Option<[[i32; 5]; MAX_FAST_CHANNELS]> {
         *t = r.words()?;
     }
     Some(t)
+}
+
+/// Each channel pair's biases (an odd last channel paired with itself), as the pair loop
+/// takes them.
+#[inline(always)]
+fn bias_pairs(bias: &[i32]) -> [[i32; 2]; MAX_FAST_CHANNELS / 2] {
+    let mut t = [[0; 2]; MAX_FAST_CHANNELS / 2];
+    for (t, b) in t.iter_mut().zip(bias.chunks(2)) {
+        *t = [b[0], *b.get(1).unwrap_or(&b[0])];
+    }
+    t
 }
 
 /// The first `channels` rows of a flat line of accumulators ([`AccRows`]) requantised, row
@@ -465,6 +478,21 @@ pub(crate) fn row<R: Apply>(
     let (n, positions) = (rin.words, rin.positions);
     let oc = bias.len().min(rq.len());
     let rows = AccRows::new(oc, positions, words.is_some(), rout.step, skip);
+    // A row per channel: every channel pair's dot products in one call, then every row's
+    // requantisation in one.
+    if let (true, Some(words)) = (rows.flat, words) {
+        let pairs = bias_pairs(&bias[..oc]);
+        let lines = (positions, oc);
+        let at = (rout.base, rout.plane);
+        let all = (weights, 2 * n);
+        if rin
+            .plan
+            .run_channels(line, all, &pairs[..oc.div_ceil(2)], acc, (positions, 0))
+        {
+            requant_rows(acc, lines, rq, words, relu, skip, out, at);
+        }
+        return;
+    }
     let mut o = 0;
     while o < oc {
         let two = o + 1 < oc;
@@ -476,28 +504,20 @@ pub(crate) fn row<R: Apply>(
         if !rin.plan.run(line, w, [b0, b1], (&mut *acc0, &mut *acc1)) {
             break;
         }
-        if !rows.flat {
-            let at = |o: usize| o * rout.plane + rout.base;
-            requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
-            if two {
-                requant_row(
-                    &acc1[..positions],
-                    rq[o + 1],
-                    relu,
-                    skip,
-                    out,
-                    at(o + 1),
-                    rout.step,
-                );
-            }
+        let at = |o: usize| o * rout.plane + rout.base;
+        requant_row(&acc0[..positions], rq[o], relu, skip, out, at(o), rout.step);
+        if two {
+            requant_row(
+                &acc1[..positions],
+                rq[o + 1],
+                relu,
+                skip,
+                out,
+                at(o + 1),
+                rout.step,
+            );
         }
         o += 2;
-    }
-    // The channels whose dot products ran, all at once.
-    if let (true, Some(words)) = (rows.flat, words) {
-        let lines = (positions, o.min(oc));
-        let at = (rout.base, rout.plane);
-        requant_rows(acc, lines, rq, words, relu, skip, out, at);
     }
 }
 
@@ -935,7 +955,10 @@ pub(crate) fn conv<R: Apply>(
     }
 }
 
-/// [`conv`] with the fast requantisation when the worst-case accumulator `bound` allows it.
+/// [`conv`] with the fast requantisation, when the worst-case accumulator `bound` allows it;
+/// false (nothing written) otherwise, for the caller's engine that takes any requantisation.
+/// The line engine is built for the fast requantisation alone: a second build of it for the
+/// exact one would cost flash the firmware does not have.
 pub(crate) fn run_conv(
     shape: &ConvShape,
     input: &[i8],
@@ -943,12 +966,13 @@ pub(crate) fn run_conv(
     bound: i64,
     output: &mut [i8],
     scratch: &mut LineScratch,
-) {
+) -> bool {
     let oc = shape.out_channels;
-    match fast_requants(params.requant, bound) {
-        Some(f) => conv(shape, input, params, &f[..oc], output, scratch),
-        None => conv(shape, input, params, params.requant, output, scratch),
-    }
+    let Some(f) = fast_requants(params.requant, bound) else {
+        return false;
+    };
+    conv(shape, input, params, &f[..oc], output, scratch);
+    true
 }
 
 /// Taps of phase `f` on an axis with kernel `k`, stride `s`: `k = f + t·s`, `t < count`.
@@ -1208,6 +1232,8 @@ pub(crate) fn transposed<R: Apply>(
         .as_ref()
         .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
     let rows = AccRows::new(oc, ow, words.is_some(), 1, skip);
+    let bias_table = bias_pairs(params.bias.get(..oc).unwrap_or(&[]));
+    let biases = bias_table.get(..oc.div_ceil(2)).unwrap_or(&[]);
     let LineScratch {
         wbuf,
         line,
@@ -1284,6 +1310,22 @@ pub(crate) fn transposed<R: Apply>(
                     // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
                     // over the whole output row.
                     let base = (z * oh + y) * ow;
+                    if let (true, Some(words)) = (rows.flat, words) {
+                        // A row per channel: each x phase's dot products for every channel
+                        // pair in one call, then every row's requantisation in one.
+                        let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
+                        for (&(x0, nx, tx, wofs, start), plan) in phases {
+                            if nx == 0 {
+                                continue;
+                            }
+                            let w = (wbuf.get(wofs..).unwrap_or(&[]), 2 * tx * vw);
+                            let x = line.get(start..vw * cols).unwrap_or(&[]);
+                            plan.run_channels(x, w, biases, acc, (ow, x0));
+                        }
+                        let at = (base, out_plane);
+                        requant_rows(acc, (ow, oc), rq, words, params.relu, skip, output, at);
+                        continue;
+                    }
                     let mut o = 0;
                     while o < oc {
                         let two = o + 1 < oc;
@@ -1301,26 +1343,20 @@ pub(crate) fn transposed<R: Apply>(
                             let a1 = acc1.get_mut(x0..).unwrap_or(&mut []);
                             plan.run(x, w, [b0, b1], (a0, a1));
                         }
-                        if !rows.flat {
-                            let at = |o: usize| o * out_plane + base;
-                            requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
-                            if two {
-                                requant_row(
-                                    &acc1[..ow],
-                                    rq[o + 1],
-                                    params.relu,
-                                    skip,
-                                    output,
-                                    at(o + 1),
-                                    1,
-                                );
-                            }
+                        let at = |o: usize| o * out_plane + base;
+                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                        if two {
+                            requant_row(
+                                &acc1[..ow],
+                                rq[o + 1],
+                                params.relu,
+                                skip,
+                                output,
+                                at(o + 1),
+                                1,
+                            );
                         }
                         o += 2;
-                    }
-                    if let (true, Some(words)) = (rows.flat, words) {
-                        let at = (base, out_plane);
-                        requant_rows(acc, (ow, oc), rq, words, params.relu, skip, output, at);
                     }
                 }
             }
@@ -1328,7 +1364,8 @@ pub(crate) fn transposed<R: Apply>(
     }
 }
 
-/// [`transposed`] with the fast requantisation when `bound` allows it and the skip table.
+/// [`transposed`] with the fast requantisation and the skip table, when `bound` allows the
+/// fast requantisation; false (nothing written) otherwise, as [`run_conv`].
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run_transposed(
     shape: &ConvShape,
@@ -1339,15 +1376,15 @@ pub(crate) fn run_transposed(
     skip: &Skip<'_>,
     output: &mut [i8],
     scratch: &mut LineScratch,
-) {
+) -> bool {
     let oc = shape.out_channels;
+    let Some(f) = fast_requants(params.requant, bound) else {
+        return false;
+    };
     let table = skip_table(skip);
     let lut = skip_lut(skip, &table);
-    let (p, rq) = (params, params.requant);
-    match fast_requants(rq, bound) {
-        Some(f) => transposed(shape, input, p, layer, &f[..oc], lut, output, scratch),
-        None => transposed(shape, input, p, layer, rq, lut, output, scratch),
-    }
+    transposed(shape, input, params, layer, &f[..oc], lut, output, scratch);
+    true
 }
 
 // The im2col engine: the forward convolutions' path for layers the line engine above does not
