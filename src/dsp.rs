@@ -977,6 +977,33 @@ pub fn mean_column(
     )
 }
 
+/// Eight adjacent columns `col .. col + 8` of [`cost_column`] (or of [`mean_column`] when
+/// `sum`), as [`table_columns4`] (`mve::table_columns8`, 16-bit lanes). False, and nothing
+/// written, in other builds or where it refuses; the caller then takes four columns or one.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn table_columns8(
+    out: &mut [i8],
+    reference: &[i8],
+    src: &[i8],
+    (width, col): (usize, usize),
+    taps: [(usize, i16, i16); 8],
+    table: &[i8; 512],
+    sum: bool,
+) -> bool {
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    {
+        let cs = taps.map(|t| t.0);
+        let weights = taps.map(|t| (t.1, t.2));
+        crate::mve::table_columns8(out, reference, src, (width, col), cs, weights, table, sum)
+    }
+    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+    {
+        let _ = (out, reference, src, width, col, taps, table, sum);
+        false
+    }
+}
+
 /// Four adjacent columns `col .. col + 4` of [`cost_column`] (or of [`mean_column`] when
 /// `sum`), one tap `(c, wl, wr)` per column: the same values, in one pass down the rows with
 /// Helium (`mve::table_columns4`). False, and nothing written, in other builds or under

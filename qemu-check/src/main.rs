@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -632,7 +632,11 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
             bad += 1;
         }
         runs += 1;
-        if !table_columns_agree(rng, &bytes) {
+        if !table_columns_agree(rng, &bytes, 4) {
+            bad += 1;
+        }
+        runs += 1;
+        if !table_columns_agree(rng, &bytes, 8) {
             bad += 1;
         }
         runs += 2;
@@ -779,17 +783,22 @@ fn channel_taps_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     got == want
 }
 
-/// `dsp::table_columns4` (four cost-volume columns of two views in one pass) against the
-/// one-column formula on a random piece: Helium builds must take it, the others refuse it and
-/// leave `out` alone.
-fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    let width = 4 + (rng.next() % 13) as usize;
-    let rows = 1 + (rng.next() % 16) as usize;
+/// `dsp::table_columns4` or `dsp::table_columns8` (`lanes` cost-volume columns of two views in
+/// one pass) against the one-column formula on a random piece: Helium builds must take it,
+/// the others refuse it and leave `out` alone. Extreme values (−128, 127 and weights of 256)
+/// come often, the edges of the eight-lane version's 16-bit sums.
+fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512], lanes: usize) -> bool {
+    let width = lanes + (rng.next() % 13) as usize;
+    let rows = 1 + (rng.next() as usize) % (256 / width);
     let n = rows * width;
-    let col = (rng.next() as usize) % (width - 3);
-    let taps: [(usize, i16, i16); 4] = core::array::from_fn(|_| {
+    let col = (rng.next() as usize) % (width - lanes + 1);
+    let taps: [(usize, i16, i16); 8] = core::array::from_fn(|_| {
         let c = (rng.next() as usize) % (width - 1);
-        let wr = (rng.next() % 257) as i16;
+        let wr = match rng.next() % 4 {
+            0 => 0,
+            1 => 256,
+            _ => (rng.next() % 257) as i16,
+        };
         if rng.next().is_multiple_of(8) {
             (c, 0, 0)
         } else {
@@ -799,25 +808,32 @@ fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     let mut table = [0i8; 512];
     rng.fill(&mut table);
     let sum = rng.next().is_multiple_of(2);
-    let (reference, src) = (&bytes[..n], &bytes[256..256 + n]);
+    let mut piece = [0i8; 512];
+    piece.copy_from_slice(bytes);
+    for v in piece.iter_mut() {
+        match rng.next() % 4 {
+            0 => *v = -128,
+            1 => *v = 127,
+            _ => {}
+        }
+    }
+    let (reference, src) = (&piece[..n], &piece[256..256 + n]);
     let mut out = [0i8; 256];
     rng.fill(&mut out);
     let old = out;
-    let took = epssn::dsp::table_columns4(
-        &mut out[..n],
-        reference,
-        src,
-        (width, col),
-        taps,
-        &table,
-        sum,
-    );
+    let cols = (width, col);
+    let took = if lanes == 8 {
+        epssn::dsp::table_columns8(&mut out[..n], reference, src, cols, taps, &table, sum)
+    } else {
+        let four = [taps[0], taps[1], taps[2], taps[3]];
+        epssn::dsp::table_columns4(&mut out[..n], reference, src, cols, four, &table, sum)
+    };
     if took != cfg!(feature = "mve") {
         return false;
     }
     (0..n).all(|i| {
         let (k, b) = (i / width, i % width);
-        if !took || b < col || b >= col + 4 {
+        if !took || b < col || b >= col + lanes {
             return out[i] == old[i];
         }
         let (c, wl, wr) = taps[b - col];

@@ -599,15 +599,30 @@ impl CostVolume<'_> {
         let width = self.shape.width.min(MAX_WIDTH);
         let table = if mean { &self.mean_table } else { &self.table };
         let mut done = 0u64;
-        for b in (0..width.saturating_sub(3)).step_by(4) {
+        let mut b = 0;
+        while b + 4 <= width {
+            let cols = (self.shape.width, b);
+            // Eight columns in one pass where all eight taps have two columns, else four.
+            if b + 8 <= width {
+                let w: [_; 8] = core::array::from_fn(|k| taps[b + k].window(width));
+                if let [Some(a), Some(c), Some(d), Some(e), Some(f), Some(g), Some(h), Some(i)] = w
+                {
+                    let eight = [a, c, d, e, f, g, h, i];
+                    if crate::dsp::table_columns8(out, reference, src, cols, eight, table, mean) {
+                        done |= 0xff << b;
+                        b += 8;
+                        continue;
+                    }
+                }
+            }
             let w = [0, 1, 2, 3].map(|k| taps[b + k].window(width));
             if let [Some(t0), Some(t1), Some(t2), Some(t3)] = w {
                 let quad = [t0, t1, t2, t3];
-                let cols = (self.shape.width, b);
                 if crate::dsp::table_columns4(out, reference, src, cols, quad, table, mean) {
                     done |= 0xf << b;
                 }
             }
+            b += 4;
         }
         done
     }
