@@ -1556,35 +1556,36 @@ mod line_rows {
                 .checked_mul(at.len())
                 .and_then(|n| entries.checked_sub(n));
             let fits = at.len() <= Self::MAX_TAPS && need <= ZERO_ROW.len();
-            let (Some(last), Some(pad), true) = (last, pad, fits) else {
-                return taps.refused();
-            };
-            taps.pad = pad;
-            for ((r, s), &a) in taps.row.iter_mut().zip(taps.step.iter_mut()).zip(at) {
-                if a == usize::MAX {
-                    continue;
+            let mut ok = fits;
+            if let (Some(last), Some(pad), true) = (last, pad, fits) {
+                taps.pad = pad;
+                for ((r, s), &a) in taps.row.iter_mut().zip(taps.step.iter_mut()).zip(at) {
+                    if a == usize::MAX {
+                        continue;
+                    }
+                    // Every channel's row lies in `input`: the last channel's ends within it.
+                    let end = a.checked_add(last).and_then(|e| e.checked_add(need));
+                    if end.is_none_or(|e| e > input.len()) {
+                        ok = false;
+                        break;
+                    }
+                    *r = LineRow {
+                        ptr: input.as_ptr().wrapping_add(a),
+                        off: off as i32,
+                    };
+                    *s = cs;
                 }
-                // Every channel's row lies in `input`: the last channel's ends within it.
-                let end = a.checked_add(last).and_then(|e| e.checked_add(need));
-                if end.is_none_or(|e| e > input.len()) {
-                    return taps.refused();
-                }
-                *r = LineRow {
-                    ptr: input.as_ptr().wrapping_add(a),
-                    off: off as i32,
-                };
-                *s = cs;
+            } else {
+                ok = false;
+            }
+            // Refused: no rows, every `next_rows` call refuses. One exit, so that the table is
+            // built where the caller keeps it rather than copied there (220 bytes per line).
+            if !ok {
+                taps.taps = 0;
+                taps.channels = 0;
+                taps.pad = 0;
             }
             taps
-        }
-
-        /// No rows: every [`ChannelTaps::next_rows`] call refuses.
-        #[inline(always)]
-        fn refused(mut self) -> Self {
-            self.taps = 0;
-            self.channels = 0;
-            self.pad = 0;
-            self
         }
 
         /// Replaces `rows` with the next `count` rows (at most [`LineRows::CAPACITY`], and no more

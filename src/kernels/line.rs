@@ -721,12 +721,13 @@ impl TapCursor {
 /// a time by [`crate::dsp::ChannelTaps`] and packed by [`crate::dsp::pack_line_quads`]. One
 /// copy for every engine and layer (flash), called once per line. Rows whose length is
 /// not a multiple of 4, or more than [`MAX_ROW_TAPS`] taps per channel, go through [`fill`].
+/// `padded`: the padding columns hold zeros already (an earlier line of the same `vp` and
+/// `cols` wrote them), so only the input columns are written.
 #[cfg(all(feature = "dsp", target_arch = "arm"))]
 #[inline(never)]
 fn fill_taps(
     line: &mut [u32],
-    vp: usize,
-    cols: usize,
+    (vp, cols, padded): (usize, usize, bool),
     span: (usize, usize, usize),
     input: &[i8],
     off: i16,
@@ -745,10 +746,13 @@ fn fill_taps(
     let Some(words) = line.get_mut(..vw * cols) else {
         return;
     };
-    // The padding columns, as in `fill`.
-    let (head, tail) = (lo.min(cols), (lo + len).min(cols));
-    words[..head * vw].fill(0);
-    words[tail * vw..].fill(0);
+    // The padding columns, as in `fill`, unless an earlier line of the same layout zeroed
+    // them (`padded`): no fill writes there.
+    if !padded {
+        let (head, tail) = (lo.min(cols), (lo + len).min(cols));
+        words[..head * vw].fill(0);
+        words[tail * vw..].fill(0);
+    }
     // Channel 0's row of every tap (a, b) from column in0 on, `usize::MAX` outside the
     // input; channel i's is that plus i · cs.
     let mut at = [usize::MAX; MAX_ROW_TAPS];
@@ -898,11 +902,11 @@ pub(crate) fn conv<R: Apply>(
         pad_pairs(wbuf, g, n);
         for z in 0..od {
             for y in 0..oh {
+                // Lines after the call's first keep its zero padding columns.
                 #[cfg(all(feature = "dsp", target_arch = "arm"))]
                 fill_taps(
                     line,
-                    vp,
-                    cols,
+                    (vp, cols, o0 > 0 || z > 0 || y > 0),
                     span,
                     input,
                     off,
@@ -1279,8 +1283,10 @@ pub(crate) fn transposed<R: Apply>(
                     let by = (y + ph) / sh;
                     #[cfg(all(feature = "dsp", target_arch = "arm"))]
                     {
+                        // Lines after the phase's first keep its zero padding columns.
                         let taps = LineTaps::transposed(shape, (bz, by), (tz, ty));
-                        fill_taps(line, vp, cols, span, input, off, taps);
+                        let padded = qz > 0 || qy > 0;
+                        fill_taps(line, (vp, cols, padded), span, input, off, taps);
                     }
                     #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
                     {
