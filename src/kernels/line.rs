@@ -473,7 +473,7 @@ pub(crate) fn row<R: Apply>(
     out: &mut [i8],
     rout: RowOut,
     acc: &mut RowAcc,
-    words: Option<crate::dsp::RowWords<'_>>,
+    (words, biases): (Option<crate::dsp::RowWords<'_>>, &[[i32; 2]]),
 ) {
     let (n, positions) = (rin.words, rin.positions);
     let oc = bias.len().min(rq.len());
@@ -481,14 +481,11 @@ pub(crate) fn row<R: Apply>(
     // A row per channel: every channel pair's dot products in one call, then every row's
     // requantisation in one.
     if let (true, Some(words)) = (rows.flat, words) {
-        let pairs = bias_pairs(&bias[..oc]);
         let lines = (positions, oc);
         let at = (rout.base, rout.plane);
         let all = (weights, 2 * n);
-        if rin
-            .plan
-            .run_channels(line, all, &pairs[..oc.div_ceil(2)], acc, (positions, 0))
-        {
+        let pairs = biases.get(..oc.div_ceil(2)).unwrap_or(&[]);
+        if rin.plan.run_channels(line, all, pairs, acc, (positions, 0)) {
             requant_rows(acc, lines, rq, words, relu, skip, out, at);
         }
         return;
@@ -900,6 +897,8 @@ pub(crate) fn conv<R: Apply>(
             }
         }
         pad_pairs(wbuf, g, n);
+        // The group's channel pairs' biases, for every row of the layer.
+        let biases = bias_pairs(params.bias.get(o0..o0 + g).unwrap_or(&[]));
         for z in 0..od {
             for y in 0..oh {
                 // Lines after the call's first keep its zero padding columns.
@@ -951,7 +950,7 @@ pub(crate) fn conv<R: Apply>(
                         step: 1,
                     },
                     acc,
-                    words.and_then(|w| w.get(o0..o0 + g)),
+                    (words.and_then(|w| w.get(o0..o0 + g)), &biases),
                 );
             }
         }
