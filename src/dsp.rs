@@ -286,8 +286,9 @@ impl RowPlan {
         acc: &mut [i32],
         (rstride, first): (usize, usize),
     ) -> bool {
+        // Helium's register loop takes every pair at once; other shapes run pair by pair.
         #[cfg(all(feature = "mve", target_arch = "arm"))]
-        if let Some(pairs) = &self.pairs {
+        if let Some(pairs) = self.pairs.filter(|p| p.in_registers()) {
             return pairs.run_channels(x, (w, wstride), bias, acc, (rstride, first));
         }
         for (k, &b) in bias.iter().enumerate() {
@@ -977,60 +978,54 @@ pub fn mean_column(
     )
 }
 
-/// Eight adjacent columns `col .. col + 8` of [`cost_column`] (or of [`mean_column`] when
-/// `sum`), as [`table_columns4`] (`mve::table_columns8`, 16-bit lanes). False, and nothing
-/// written, in other builds or where it refuses; the caller then takes four columns or one.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn table_columns8(
-    out: &mut [i8],
-    reference: &[i8],
-    src: &[i8],
-    (width, col): (usize, usize),
-    taps: [(usize, i16, i16); 8],
-    table: &[i8; 512],
-    sum: bool,
-) -> bool {
-    #[cfg(all(feature = "mve", target_arch = "arm"))]
-    {
-        let cs = taps.map(|t| t.0);
-        let weights = taps.map(|t| (t.1, t.2));
-        crate::mve::table_columns8(out, reference, src, (width, col), cs, weights, table, sum)
-    }
-    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
-    {
-        let _ = (out, reference, src, width, col, taps, table, sum);
-        false
-    }
+/// `table_columns!(name, lanes)`: a dispatcher to `crate::mve`'s kernel of the
+/// same name, false in builds without it; one body for both widths.
+macro_rules! table_columns {
+    ($(#[$doc:meta])* $name:ident, $lanes:literal) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        #[inline(always)]
+        pub fn $name(
+            out: &mut [i8],
+            reference: &[i8],
+            src: &[i8],
+            (width, col): (usize, usize),
+            taps: [(usize, i16, i16); $lanes],
+            table: &[i8; 512],
+            sum: bool,
+        ) -> bool {
+            #[cfg(all(feature = "mve", target_arch = "arm"))]
+            {
+                let cs = taps.map(|t| t.0);
+                let weights = taps.map(|t| (t.1, t.2));
+                crate::mve::$name(out, reference, src, (width, col), cs, weights, table, sum)
+            }
+            #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+            {
+                let _ = (out, reference, src, width, col, taps, table, sum);
+                false
+            }
+        }
+    };
 }
 
-/// Four adjacent columns `col .. col + 4` of [`cost_column`] (or of [`mean_column`] when
-/// `sum`), one tap `(c, wl, wr)` per column: the same values, in one pass down the rows with
-/// Helium (`mve::table_columns4`). False, and nothing written, in other builds or under
-/// conditions either one-column function would refuse; the caller then goes column by column.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn table_columns4(
-    out: &mut [i8],
-    reference: &[i8],
-    src: &[i8],
-    (width, col): (usize, usize),
-    taps: [(usize, i16, i16); 4],
-    table: &[i8; 512],
-    sum: bool,
-) -> bool {
-    #[cfg(all(feature = "mve", target_arch = "arm"))]
-    {
-        let cs = taps.map(|t| t.0);
-        let weights = taps.map(|t| (t.1, t.2));
-        crate::mve::table_columns4(out, reference, src, (width, col), cs, weights, table, sum)
-    }
-    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
-    {
-        let _ = (out, reference, src, width, col, taps, table, sum);
-        false
-    }
-}
+table_columns!(
+    /// Eight adjacent columns `col .. col + 8` of [`cost_column`] (or of [`mean_column`] when
+    /// `sum`), as [`table_columns4`] (`mve::table_columns8`, 16-bit lanes). False, and nothing
+    /// written, in other builds or where it refuses; the caller then takes four columns or one.
+    table_columns8,
+    8
+);
+
+table_columns!(
+    /// Four adjacent columns `col .. col + 4` of [`cost_column`] (or of [`mean_column`] when
+    /// `sum`), one tap `(c, wl, wr)` per column: the same values, in one pass down the rows with
+    /// Helium (`mve::table_columns4`). False, and nothing written, in other builds or under
+    /// conditions either one-column function would refuse; the caller then goes column by
+    /// column.
+    table_columns4,
+    4
+);
 
 /// How [`table_column`] combines the reference value with the warped source value.
 #[derive(Clone, Copy)]

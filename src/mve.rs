@@ -333,7 +333,7 @@ impl PairRows {
     /// Whether the loop keeps its state in registers: `n ≡ 0 mod 4` and accumulators one or
     /// two words apart.
     #[inline(always)]
-    fn in_registers(&self) -> bool {
+    pub fn in_registers(&self) -> bool {
         self.n.is_multiple_of(4) && (self.astep == 1 || self.astep == 2)
     }
 
@@ -468,7 +468,9 @@ impl PairRows {
     /// computes with weights `w[k·wstride ..]`, biases `bias[k]` and accumulator rows
     /// `acc[2k·rstride + first ..]` and `acc[(2k + 1)·rstride + first ..]`. One call per
     /// line instead of one per channel pair (about 25 instructions per further pair against
-    /// 90). Returns false, doing nothing, when a slice is too short for every pair.
+    /// 90). Returns false, doing nothing, for a shape whose loop keeps its state on the stack
+    /// ([`PairRows::in_registers`] false: the caller runs its pairs one by one) or a slice too
+    /// short for every pair.
     pub fn run_channels(
         &self,
         x: &[u32],
@@ -480,7 +482,8 @@ impl PairRows {
         let Some(last) = bias.len().checked_sub(1) else {
             return true;
         };
-        let fits = x.len() >= self.x_len
+        let fits = self.in_registers()
+            && x.len() >= self.x_len
             && wstride <= usize::MAX / 8
             && rstride <= usize::MAX / 8
             && last
@@ -495,20 +498,9 @@ impl PairRows {
         if !fits {
             return false;
         }
-        if !self.in_registers() {
-            for (k, &b) in bias.iter().enumerate() {
-                let Some((head, tail)) = acc.split_at_mut_checked((2 * k + 1) * rstride + first)
-                else {
-                    return false;
-                };
-                let a0 = head.get_mut(2 * k * rstride + first..).unwrap_or(&mut []);
-                self.run(x, w.get(k * wstride..).unwrap_or(&[]), b, (a0, tail));
-            }
-            return true;
-        }
         let a0 = acc.as_mut_ptr().wrapping_add(first);
         let a1 = a0.wrapping_add(rstride);
-        // SAFETY: in_registers() (checked); for every pair k ≤ last the weights from
+        // SAFETY: in_registers() (checked above); for every pair k ≤ last the weights from
         // k·wstride run w_len words within w, the rows from 2k·rstride + first and
         // (2k + 1)·rstride + first run acc_len words within acc, and x holds x_len words
         // (checked above); the steps are in bytes.
@@ -860,217 +852,135 @@ pub fn requant_max_row_quads(
     mx as i8
 }
 
-/// Four adjacent columns `col .. col + 4` of [`crate::dsp::cost_column`] (`sum` false) or
-/// [`crate::dsp::mean_column`] (`sum` true) with Helium, one row of four values per
-/// iteration: for every row `k` and lane `l`, with `i = k·width + col + l`, the warped value
-/// `w = (src[k·width + c_l]·wl_l + src[k·width + c_l + 1]·wr_l + 128) >> 8` (two byte gathers,
-/// `VRSHR` for the rounding) and `out[i] = table[reference[i] − w + 255]` (or
-/// `reference[i] + w + 256`), the table read by a third gather: 15 instructions per four
-/// values where the `SMUAD` loop takes 12 per value. The same conditions as the one-column
-/// loop for each lane, and `col + 4 ≤ width`; anything else writes nothing and gives false.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn table_columns4(
-    out: &mut [i8],
-    reference: &[i8],
-    src: &[i8],
-    (width, col): (usize, usize),
-    cs: [usize; 4],
-    weights: [(i16, i16); 4],
-    table: &[i8; 512],
-    sum: bool,
-) -> bool {
-    let n = out.len();
-    let lanes_ok = cs.iter().zip(&weights).all(|(&c, &(wl, wr))| {
-        c.checked_add(1).is_some_and(|c1| c1 < width)
-            && ((wl >= 0 && wr >= 0 && wl as i32 + wr as i32 == 256) || (wl, wr) == (0, 0))
-    });
-    let ok = lanes_ok
-        && n > 0
-        && reference.len() == n
-        && src.len() == n
-        && width > 0
-        && n.is_multiple_of(width)
-        && col.checked_add(4).is_some_and(|e| e <= width)
-        && n <= i32::MAX as usize;
-    if !ok {
-        return false;
-    }
-    let rows = n / width;
-    // Gather offsets (bytes from the row's start: the left columns, then the right ones)
-    // and the lanes' weights, loaded into vector registers once.
-    let offsets: [u32; 8] = core::array::from_fn(|k| (cs[k % 4] + k / 4) as u32);
-    let w: [i32; 8] = core::array::from_fn(|k| {
-        let (wl, wr) = weights[k % 4];
-        if k < 4 {
-            wl as i32
-        } else {
-            wr as i32
+/// `table_columns!(name, lanes, offset type, weight type, bits, offset load)`: the cost
+/// volume's columns `col .. col + lanes` in one pass down the rows, in lanes of `bits` bits
+/// (see [`table_columns4`]); one body for both widths.
+macro_rules! table_columns {
+    ($(#[$doc:meta])* $name:ident, $lanes:literal, $off:ty, $wt:ty, $b:literal, $ld:literal) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        #[inline(always)]
+        pub fn $name(
+            out: &mut [i8],
+            reference: &[i8],
+            src: &[i8],
+            (width, col): (usize, usize),
+            cs: [usize; $lanes],
+            weights: [(i16, i16); $lanes],
+            table: &[i8; 512],
+            sum: bool,
+        ) -> bool {
+            let n = out.len();
+            let lanes_ok = cs.iter().zip(&weights).all(|(&c, &(wl, wr))| {
+                c.checked_add(1).is_some_and(|c1| c1 < width)
+                    && ((wl >= 0 && wr >= 0 && wl as i32 + wr as i32 == 256) || (wl, wr) == (0, 0))
+            });
+            let ok = lanes_ok
+                && n > 0
+                && reference.len() == n
+                && src.len() == n
+                && width > 0
+                && width - 1 <= <$off>::MAX as usize
+                && n.is_multiple_of(width)
+                && col.checked_add($lanes).is_some_and(|e| e <= width)
+                && n <= i32::MAX as usize;
+            if !ok {
+                return false;
+            }
+            let rows = n / width;
+            // Gather offsets (bytes from the row's start: the left columns, then the right
+            // ones) and the lanes' weights, loaded into vector registers once.
+            let offsets: [$off; 2 * $lanes] =
+                core::array::from_fn(|k| (cs[k % $lanes] + k / $lanes) as $off);
+            let w: [$wt; 2 * $lanes] = core::array::from_fn(|k| {
+                let (wl, wr) = weights[k % $lanes];
+                (if k < $lanes { wl } else { wr }) as $wt
+            });
+            // SAFETY: row k (k < rows, `DLS`/`LE` run exactly rows ≥ 1 times) reads reference
+            // and writes out at k·width + col .. + lanes (col + lanes ≤ width), and gathers
+            // src at k·width + c_l and + c_l + 1 (c_l + 1 < width, so the offsets' type holds
+            // them): all below n = rows·width, the slices' length. The lanes' sums are exact
+            // in `bits` bits (weights ≥ 0 summing to 256 or both 0, values in −128..=127, so
+            // −32768..=32512) and `VRSHR` rounds without overflow; the table index is
+            // reference ∓ w + 255 (or + 256), 0..=510.
+            macro_rules! columns_loop {
+                ($combine:literal, $offset:literal) => {{
+                    #[allow(unsafe_code)]
+                    unsafe {
+                        core::arch::asm!(
+                            concat!("vldr", $ld, "    q4, [{op}]"),
+                            concat!("vldr", $ld, "    q5, [{op}, #16]"),
+                            concat!("vldr", $ld, "    q2, [{wp}]"),
+                            concat!("vldr", $ld, "    q3, [{wp}, #16]"),
+                            "dls   lr, {rows}",
+                            "2:",
+                            concat!("vldrb.s", $b, "    q0, [{sp}, q4]"),
+                            concat!("vldrb.s", $b, "    q1, [{sp}, q5]"),
+                            concat!("vmul.i", $b, "     q0, q0, q2"),
+                            concat!("vmul.i", $b, "     q1, q1, q3"),
+                            concat!("vadd.i", $b, "     q0, q0, q1"),
+                            concat!("vrshr.s", $b, "    q0, q0, #8"),
+                            concat!("vldrb.s", $b, "    q1, [r1]"),
+                            concat!($combine, ".i", $b, "     q1, q1, q0"),
+                            concat!("vadd.i", $b, "     q1, q1, {base}"),
+                            concat!("vldrb.u", $b, "    q0, [{tb}, q1]"),
+                            concat!("vstrb.", $b, "     q0, [r3]"),
+                            "add   {sp}, {sp}, {st}",
+                            "add   r1, r1, {st}",
+                            "add   r3, r3, {st}",
+                            "le    lr, 2b",
+                            op = in(reg) offsets.as_ptr(),
+                            wp = in(reg) w.as_ptr(),
+                            rows = in(reg) rows,
+                            sp = inout(reg) src.as_ptr() => _,
+                            // The widening load and the narrowing store take only low
+                            // registers.
+                            inout("r1") reference.as_ptr().wrapping_add(col) => _,
+                            inout("r3") out.as_mut_ptr().wrapping_add(col) => _,
+                            base = in(reg) $offset,
+                            tb = in(reg) table.as_ptr(),
+                            st = in(reg) width,
+                            out("lr") _,
+                            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                            out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                            options(nostack),
+                        )
+                    };
+                }};
+            }
+            if sum {
+                columns_loop!("vadd", 256u32);
+            } else {
+                columns_loop!("vsub", 255u32);
+            }
+            true
         }
-    });
-    // SAFETY: row k (k < rows, `DLS`/`LE` run exactly rows ≥ 1 times) reads reference and
-    // writes out at k·width + col .. + 4 (col + 4 ≤ width), and gathers src at k·width + c_l
-    // and + c_l + 1 (c_l + 1 < width): all below n = rows·width, the slices' length. The
-    // table index is reference ∓ w + 255 (or + 256), reference and w in −128..=127 (w a
-    // rounded weighted mean of two int8 values, weights summing to 256 or 0), so 0..=510.
-    macro_rules! columns_loop {
-        ($combine:literal, $offset:literal) => {{
-            #[allow(unsafe_code)]
-            unsafe {
-                core::arch::asm!(
-                    "vldrw.u32    q4, [{op}]",
-                    "vldrw.u32    q5, [{op}, #16]",
-                    "vldrw.u32    q2, [{wp}]",
-                    "vldrw.u32    q3, [{wp}, #16]",
-                    "dls   lr, {rows}",
-                    "2:",
-                    "vldrb.s32    q0, [{sp}, q4]",
-                    "vldrb.s32    q1, [{sp}, q5]",
-                    "vmul.i32     q0, q0, q2",
-                    "vmul.i32     q1, q1, q3",
-                    "vadd.i32     q0, q0, q1",
-                    "vrshr.s32    q0, q0, #8",
-                    "vldrb.s32    q1, [r1]",
-                    $combine,
-                    "vadd.i32     q1, q1, {base}",
-                    "vldrb.u32    q0, [{tb}, q1]",
-                    "vstrb.32     q0, [r3]",
-                    "add   {sp}, {sp}, {st}",
-                    "add   r1, r1, {st}",
-                    "add   r3, r3, {st}",
-                    "le    lr, 2b",
-                    op = in(reg) offsets.as_ptr(),
-                    wp = in(reg) w.as_ptr(),
-                    rows = in(reg) rows,
-                    sp = inout(reg) src.as_ptr() => _,
-                    // The widening load and the narrowing store take only low registers.
-                    inout("r1") reference.as_ptr().wrapping_add(col) => _,
-                    inout("r3") out.as_mut_ptr().wrapping_add(col) => _,
-                    base = in(reg) $offset,
-                    tb = in(reg) table.as_ptr(),
-                    st = in(reg) width,
-                    out("lr") _,
-                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-                    options(nostack),
-                )
-            };
-        }};
-    }
-    if sum {
-        columns_loop!("vadd.i32     q1, q1, q0", 256u32);
-    } else {
-        columns_loop!("vsub.i32     q1, q1, q0", 255u32);
-    }
-    true
+    };
 }
 
-/// Eight adjacent columns `col .. col + 8` of [`table_columns4`]'s loop, in 16-bit lanes:
-/// the warped value's products fit i16 (|src| ≤ 128 times weights summing to 256), the byte
-/// gathers take 16-bit offsets (rows of at most 64 columns, the table's 512 entries), so one
-/// pass does eight columns in the 15 instructions four took. The same conditions as
-/// [`table_columns4`] for each lane, and `col + 8 ≤ width`; anything else writes nothing and
-/// gives false.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub fn table_columns8(
-    out: &mut [i8],
-    reference: &[i8],
-    src: &[i8],
-    (width, col): (usize, usize),
-    cs: [usize; 8],
-    weights: [(i16, i16); 8],
-    table: &[i8; 512],
-    sum: bool,
-) -> bool {
-    let n = out.len();
-    let lanes_ok = cs.iter().zip(&weights).all(|(&c, &(wl, wr))| {
-        c.checked_add(1).is_some_and(|c1| c1 < width)
-            && ((wl >= 0 && wr >= 0 && wl as i32 + wr as i32 == 256) || (wl, wr) == (0, 0))
-    });
-    let ok = lanes_ok
-        && n > 0
-        && reference.len() == n
-        && src.len() == n
-        && width > 0
-        && width <= u16::MAX as usize
-        && n.is_multiple_of(width)
-        && col.checked_add(8).is_some_and(|e| e <= width)
-        && n <= i32::MAX as usize;
-    if !ok {
-        return false;
-    }
-    let rows = n / width;
-    // Gather offsets (bytes from the row's start: the left columns, then the right ones)
-    // and the lanes' weights, loaded into vector registers once.
-    let offsets: [u16; 16] = core::array::from_fn(|k| (cs[k % 8] + k / 8) as u16);
-    let w: [i16; 16] = core::array::from_fn(|k| {
-        let (wl, wr) = weights[k % 8];
-        if k < 8 {
-            wl
-        } else {
-            wr
-        }
-    });
-    // SAFETY: row k (k < rows, `DLS`/`LE` run exactly rows ≥ 1 times) reads reference and
-    // writes out at k·width + col .. + 8 (col + 8 ≤ width), and gathers src at k·width + c_l
-    // and + c_l + 1 (c_l + 1 < width ≤ 65535, so the 16-bit offsets hold them): all below
-    // n = rows·width, the slices' length. The lanes' sums are exact in i16 (weights ≥ 0
-    // summing to 256 or both 0, values in −128..=127, so −32768..=32512) and `VRSHR` rounds
-    // without overflow; the table index is reference ∓ w + 255 (or + 256), 0..=510.
-    macro_rules! columns_loop {
-        ($combine:literal, $offset:literal) => {{
-            #[allow(unsafe_code)]
-            unsafe {
-                core::arch::asm!(
-                    "vldrh.u16    q4, [{op}]",
-                    "vldrh.u16    q5, [{op}, #16]",
-                    "vldrh.u16    q2, [{wp}]",
-                    "vldrh.u16    q3, [{wp}, #16]",
-                    "dls   lr, {rows}",
-                    "2:",
-                    "vldrb.s16    q0, [{sp}, q4]",
-                    "vldrb.s16    q1, [{sp}, q5]",
-                    "vmul.i16     q0, q0, q2",
-                    "vmul.i16     q1, q1, q3",
-                    "vadd.i16     q0, q0, q1",
-                    "vrshr.s16    q0, q0, #8",
-                    "vldrb.s16    q1, [r1]",
-                    $combine,
-                    "vadd.i16     q1, q1, {base}",
-                    "vldrb.u16    q0, [{tb}, q1]",
-                    "vstrb.16     q0, [r3]",
-                    "add   {sp}, {sp}, {st}",
-                    "add   r1, r1, {st}",
-                    "add   r3, r3, {st}",
-                    "le    lr, 2b",
-                    op = in(reg) offsets.as_ptr(),
-                    wp = in(reg) w.as_ptr(),
-                    rows = in(reg) rows,
-                    sp = inout(reg) src.as_ptr() => _,
-                    // The widening load and the narrowing store take only low registers.
-                    inout("r1") reference.as_ptr().wrapping_add(col) => _,
-                    inout("r3") out.as_mut_ptr().wrapping_add(col) => _,
-                    base = in(reg) $offset,
-                    tb = in(reg) table.as_ptr(),
-                    st = in(reg) width,
-                    out("lr") _,
-                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-                    options(nostack),
-                )
-            };
-        }};
-    }
-    if sum {
-        columns_loop!("vadd.i16     q1, q1, q0", 256u32);
-    } else {
-        columns_loop!("vsub.i16     q1, q1, q0", 255u32);
-    }
-    true
-}
+table_columns!(
+    /// Four adjacent columns `col .. col + 4` of [`crate::dsp::cost_column`] (`sum` false) or
+    /// [`crate::dsp::mean_column`] (`sum` true) with Helium, one row of four values per
+    /// iteration: for every row `k` and lane `l`, with `i = k·width + col + l`, the warped
+    /// value `w = (src[k·width + c_l]·wl_l + src[k·width + c_l + 1]·wr_l + 128) >> 8` (two byte
+    /// gathers, `VRSHR` for the rounding) and `out[i] = table[reference[i] − w + 255]` (or
+    /// `reference[i] + w + 256`), the table read by a third gather: 15 instructions per four
+    /// values where the `SMUAD` loop takes 12 per value. The same conditions as the one-column
+    /// loop for each lane, and `col + 4 ≤ width`; anything else writes nothing and gives
+    /// false.
+    table_columns4, 4, u32, i32, "32", "w.u32"
+);
+
+table_columns!(
+    /// Eight adjacent columns `col .. col + 8` of [`table_columns4`]'s loop, in 16-bit lanes:
+    /// the warped value's products fit i16 (|src| ≤ 128 times weights summing to 256), the
+    /// byte gathers take 16-bit offsets (rows of at most 65,536 columns, the table's 512
+    /// entries), so one pass does eight columns in the 15 instructions four took. The same
+    /// conditions as [`table_columns4`] for each lane, and `col + 8 ≤ width`; anything else
+    /// writes nothing and gives false.
+    table_columns8, 8, u16, i16, "16", "h.u16"
+);
 
 /// [`crate::dsp::exp_sums`] with Helium for a non-zero multiple of 4 logits: four logits per
 /// iteration, the table read by a halfword gather, `VADDVA` adding the four weights to `S`
