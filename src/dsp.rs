@@ -222,7 +222,7 @@ pub fn dot2x2_row(
 
 /// The shape of a [`dot2x2_row`] call (`step`, `positions`, `n`, `astep`), prepared once for
 /// the many rows that share it: with Helium and an even number of positions, the pair loop's
-/// shape checked up front ([`crate::mve::PairRows`]), so a row's call only compares slice
+/// shape checked up front (`mve::PairRows`), so a row's call only compares slice
 /// lengths. [`RowPlan::run`] computes exactly what [`dot2x2_row`] does.
 #[derive(Clone, Copy, Debug)]
 pub struct RowPlan {
@@ -275,7 +275,7 @@ impl RowPlan {
     /// Every channel pair `k < bias.len()` of a line: [`RowPlan::run`] with the weights
     /// `w[k·wstride ..]`, biases `bias[k]` and accumulator rows `acc[2k·rstride + first ..]`
     /// and `acc[(2k + 1)·rstride + first ..]`; with Helium one call for every pair
-    /// ([`crate::mve::PairRows::run_channels`]). Returns false when a slice is too short for
+    /// (`mve::PairRows::run_channels`). Returns false when a slice is too short for
     /// a pair (earlier pairs may have been written). Not inlined: the line engines share it.
     #[inline(never)]
     pub fn run_channels(
@@ -604,7 +604,7 @@ impl<'a> RowWords<'a> {
 /// Rows of [`requant_row_s8`], one per channel of a line: row `c < params.len()` turns
 /// `acc[c·width ..][..width]` into `out[c·plane ..][..width]` with channel `c`'s words. With
 /// Helium and a width that is a multiple of 4, one call for every row
-/// ([`crate::mve::requant_rows_quads`]). Returns false, writing nothing, when a row's slices
+/// (`mve::requant_rows_quads`). Returns false, writing nothing, when a row's slices
 /// do not fit.
 pub fn requant_rows_s8(
     acc: &[i32],
