@@ -325,11 +325,6 @@ impl PairRows {
         })
     }
 
-    /// Pairs of positions per row.
-    pub fn pairs(&self) -> usize {
-        self.pairs
-    }
-
     /// Whether the loop keeps its state in registers: `n ≡ 0 mod 4` and accumulators one or
     /// two words apart.
     #[inline(always)]
@@ -785,7 +780,7 @@ pub fn requant_rows_quads(
 }
 
 /// The four-value blocks of [`crate::dsp::requant_max_row`]: `out[i] = sat(r(acc[i]))` for
-/// `i < 4 · quads` (`r` as in [`requant_row_quads`], `sat` the int8 clamp or, with `relu`,
+/// `i < 4 · quads` (`r` as in [`requant_rows_quads`], `sat` the int8 clamp or, with `relu`,
 /// the clamp to `0..=127`), returning the larger of `max` and every value written (`VMAXV`
 /// across each block): about 3.5 instructions per value (the `dsp` loop takes 14). Returns
 /// `max` and does nothing unless `acc` and `out` hold `4 · quads` values and `left1`, `right`

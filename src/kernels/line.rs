@@ -496,9 +496,9 @@ pub(crate) fn row<R: Apply>(
         let Some(w) = weights.get(o * n..(o + 2) * n) else {
             break;
         };
-        let (b0, b1) = (bias[o], if two { bias[o + 1] } else { bias[o] });
+        let b = biases.get(o / 2).copied().unwrap_or([0, 0]);
         let (acc0, acc1) = rows.pair(acc, o);
-        if !rin.plan.run(line, w, [b0, b1], (&mut *acc0, &mut *acc1)) {
+        if !rin.plan.run(line, w, b, (&mut *acc0, &mut *acc1)) {
             break;
         }
         let at = |o: usize| o * rout.plane + rout.base;
@@ -1334,7 +1334,7 @@ pub(crate) fn transposed<R: Apply>(
                     let mut o = 0;
                     while o < oc {
                         let two = o + 1 < oc;
-                        let (b0, b1) = (params.bias[o], params.bias[if two { o + 1 } else { o }]);
+                        let b = biases.get(o / 2).copied().unwrap_or([0, 0]);
                         let (acc0, acc1) = rows.pair(acc, o);
                         let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
                         for (&(x0, nx, tx, wofs, start), plan) in phases {
@@ -1346,7 +1346,7 @@ pub(crate) fn transposed<R: Apply>(
                             let x = line.get(start..vw * cols).unwrap_or(&[]);
                             let a0 = acc0.get_mut(x0..).unwrap_or(&mut []);
                             let a1 = acc1.get_mut(x0..).unwrap_or(&mut []);
-                            plan.run(x, w, [b0, b1], (a0, a1));
+                            plan.run(x, w, b, (a0, a1));
                         }
                         let at = |o: usize| o * out_plane + base;
                         requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
