@@ -113,7 +113,16 @@ fn engine(
     let (params, bound) = (checked.params(), checked.bound());
     let s3 = line_shape(shape);
     // The line engine where it takes the shape and the fast requantisation fits.
-    if conv_fits(&s3) && run_conv(&s3, input, params, bound, output, scratch) {
+    if conv_fits(&s3)
+        && run_conv(
+            &s3,
+            input,
+            params,
+            (bound, checked.layer()),
+            output,
+            scratch,
+        )
+    {
         return;
     }
     if shape.in_channels * shape.kernel[0] * shape.kernel[1] <= COL_LEN {

@@ -114,7 +114,16 @@ fn engine(
 ) {
     let (params, bound) = (checked.params(), checked.bound());
     // The line engine where it takes the shape and the fast requantisation fits.
-    if conv_fits(shape) && run_conv(shape, input, params, bound, output, scratch) {
+    if conv_fits(shape)
+        && run_conv(
+            shape,
+            input,
+            params,
+            (bound, checked.layer()),
+            output,
+            scratch,
+        )
+    {
         return;
     }
     if shape.in_channels * shape.kernel.iter().product::<usize>() <= COL_LEN {

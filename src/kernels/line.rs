@@ -398,18 +398,33 @@ pub struct LineScratch {
     kept: KeptWeights,
 }
 
-/// The model's layer index ([`super::CheckedParams`]), kernel, stride, input and output
-/// channels.
-type WeightsKey = (usize, [usize; 3], [usize; 3], usize, usize);
+/// The model's layer index ([`super::CheckedParams`], which fix its kernel and channels) and
+/// the stride (a transposed convolution's layout depends on it).
+type WeightsKey = (usize, [usize; 3]);
 
-/// Which transposed-convolution weights `wbuf` still holds, while the caller allows keeping
-/// them ([`LineScratch::keep_weights`]).
+/// Most layers whose laid-out weights `wbuf` holds side by side (the four feature layers).
+const MAX_KEPT: usize = 4;
+
+/// One layer's laid-out weights in `wbuf`.
+#[derive(Clone, Copy, Default)]
+struct KeptSlot {
+    key: WeightsKey,
+    /// First word.
+    base: usize,
+    /// Bit `fz · MAX_STRIDE + fy`: the phase's weights are laid out (bit 0 for a forward
+    /// convolution, which has one phase).
+    ready: u64,
+}
+
+/// Which layers' weights `wbuf` still holds, while the caller allows keeping them
+/// ([`LineScratch::keep_weights`]): up to [`MAX_KEPT`] layers packed from word 0 on.
 #[derive(Clone, Copy, Default)]
 struct KeptWeights {
     on: bool,
-    key: Option<WeightsKey>,
-    /// Bit `fz · MAX_STRIDE + fy`: the phase's weights are laid out.
-    ready: u64,
+    slots: [KeptSlot; MAX_KEPT],
+    /// Slots in use (`slots[..len]`) and the words they take.
+    len: usize,
+    used: usize,
 }
 
 impl Default for LineScratch {
@@ -427,31 +442,38 @@ impl LineScratch {
             acc: [0; 2 * (MAX_POSITIONS + 1)],
             kept: KeptWeights {
                 on: false,
-                key: None,
-                ready: 0,
+                slots: [KeptSlot {
+                    key: (0, [0; 3]),
+                    base: 0,
+                    ready: 0,
+                }; MAX_KEPT],
+                len: 0,
+                used: 0,
             },
         }
     }
 
-    /// From now on, a transposed convolution of a model layer whose weights (same layer,
-    /// kernel, stride and channels) were laid out by an earlier call skips laying them out
-    /// again, as long as they fit the weight buffer beside each other phase by phase. For the
-    /// model, which runs one layer many times in pieces (the streamed u0, a plane per call):
+    /// From now on, a convolution of a model layer whose weights (same layer, kernel, stride
+    /// and channels) were laid out by an earlier call skips laying them out again, as long as
+    /// they fit the weight buffer beside the other kept layers' (a transposed convolution's
+    /// phase by phase; a forward one's when its output channels form one group). For the
+    /// model, which runs a layer many times in pieces (the streamed features, d1 and u0):
     /// the layer is identified by its index in the model ([`super::CheckedParams`] carry it),
     /// not by the weights' address, which other weights could occupy later; parameters not
     /// from a model are never kept. The model's weights must not change until
     /// [`LineScratch::forget_weights`].
     pub fn keep_weights(&mut self) {
-        self.kept = KeptWeights {
-            on: true,
-            key: None,
-            ready: 0,
-        };
+        // Slots past `len` are never read.
+        self.kept.on = true;
+        self.kept.len = 0;
+        self.kept.used = 0;
     }
 
     /// Ends [`LineScratch::keep_weights`]: every call lays its weights out again.
     pub fn forget_weights(&mut self) {
-        self.kept = KeptWeights::default();
+        self.kept.on = false;
+        self.kept.len = 0;
+        self.kept.used = 0;
     }
 }
 
@@ -838,11 +860,14 @@ fn conv_group(n: usize) -> usize {
 
 /// Forward convolution (validated shape that [`conv_fits`]), requantising with `rq`.
 /// Output channels go in groups whose expanded weights fit [`WEIGHT_WORDS`] (one group for
-/// most layers; each further group refills the lines).
+/// most layers; each further group refills the lines). `layer`: the model's index of the
+/// layer, under which its laid-out weights may be kept when they form one group
+/// ([`LineScratch::keep_weights`]); `None` lays them out at every call.
 pub(crate) fn conv<R: Apply>(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
+    layer: Option<usize>,
     rq: &[R],
     output: &mut [i8],
     scratch: &mut LineScratch,
@@ -872,9 +897,11 @@ pub(crate) fn conv<R: Apply>(
             0
         }
     };
-    // The forward engine overwrites the weight buffer.
-    scratch.kept.key = None;
-    scratch.kept.ready = 0;
+    // One group's weights may be kept; more groups take turns in the buffer.
+    let key = layer.filter(|_| group >= oc).map(|l| (l, shape.stride));
+    let slot = scratch.kept.claim(key, oc.div_ceil(2) * 2 * n, 1, 1);
+    let base = scratch.kept.base(slot);
+    let laid_out = scratch.kept.laid_out(slot, 1);
     let LineScratch {
         wbuf, line, acc, ..
     } = scratch;
@@ -887,16 +914,19 @@ pub(crate) fn conv<R: Apply>(
     let mut o0 = 0;
     while o0 < oc {
         let g = group.min(oc - o0);
-        // Weights [o][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
-        for o in 0..g {
-            for kx in 0..kw {
-                for j in 0..vp / 2 {
-                    let k = kx * vp / 2 + j;
-                    wbuf[wslot(o, k, n)] = word(wv(o0 + o, kx, 2 * j), wv(o0 + o, kx, 2 * j + 1));
+        let wb = &mut wbuf[base..base + g.div_ceil(2) * 2 * n];
+        if !laid_out {
+            // Weights [o][kx][v] (v = (i, kz, ky)) as i16 pairs, zero for the padding entries.
+            for o in 0..g {
+                for kx in 0..kw {
+                    for j in 0..vp / 2 {
+                        let k = kx * vp / 2 + j;
+                        wb[wslot(o, k, n)] = word(wv(o0 + o, kx, 2 * j), wv(o0 + o, kx, 2 * j + 1));
+                    }
                 }
             }
+            pad_pairs(wb, g, n);
         }
-        pad_pairs(wbuf, g, n);
         // The group's channel pairs' biases, for every row of the layer.
         let biases = bias_pairs(params.bias.get(o0..o0 + g).unwrap_or(&[]));
         for z in 0..od {
@@ -938,7 +968,7 @@ pub(crate) fn conv<R: Apply>(
                 row(
                     line,
                     rin,
-                    &wbuf[..g.div_ceil(2) * 2 * n],
+                    wb,
                     &params.bias[o0..o0 + g],
                     &rq[o0..o0 + g],
                     params.relu,
@@ -966,7 +996,7 @@ pub(crate) fn run_conv(
     shape: &ConvShape,
     input: &[i8],
     params: &ConvParams<'_>,
-    bound: i64,
+    (bound, layer): (i64, Option<usize>),
     output: &mut [i8],
     scratch: &mut LineScratch,
 ) -> bool {
@@ -974,7 +1004,7 @@ pub(crate) fn run_conv(
     let Some(f) = fast_requants(params.requant, bound) else {
         return false;
     };
-    conv(shape, input, params, &f[..oc], output, scratch);
+    conv(shape, input, params, layer, &f[..oc], output, scratch);
     true
 }
 
@@ -1165,19 +1195,62 @@ fn x_phases(
 }
 
 impl KeptWeights {
-    /// Whether this call keeps its weights under `key`: each `(fz, fy)` phase at its own
-    /// offset, so `all` (the words of every phase) must fit the weight buffer and the plane
-    /// and row strides `sd`, `sh` the ready bits. Weights kept under another key are
-    /// forgotten.
-    #[inline(always)]
-    fn start(&mut self, key: Option<WeightsKey>, all: usize, sd: usize, sh: usize) -> bool {
-        let keep =
-            self.on && key.is_some() && all <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
-        if !keep || self.key != key {
-            self.key = if keep { key } else { None };
-            self.ready = 0;
+    /// The slot that keeps the `words` weight words of `key` (plane and row strides `sd`,
+    /// `sh` index its ready bits): the one that holds them already, or a new one after the
+    /// kept layers (all forgotten first when the buffer or the slots are full). `None` when
+    /// this call cannot keep its weights: it lays them out from word 0, over whatever was
+    /// kept, so every kept layer is forgotten.
+    #[inline(never)]
+    fn claim(
+        &mut self,
+        key: Option<WeightsKey>,
+        words: usize,
+        sd: usize,
+        sh: usize,
+    ) -> Option<usize> {
+        let keepable = self.on && words <= WEIGHT_WORDS && sd <= MAX_STRIDE && sh <= MAX_STRIDE;
+        let Some(key) = key.filter(|_| keepable) else {
+            self.len = 0;
+            self.used = 0;
+            return None;
+        };
+        let held = self.slots.get(..self.len).unwrap_or(&[]);
+        if let Some(i) = held.iter().position(|s| s.key == key) {
+            return Some(i);
         }
-        keep
+        if self.len >= MAX_KEPT || self.used + words > WEIGHT_WORDS {
+            self.len = 0;
+            self.used = 0;
+        }
+        let slot = self.slots.get_mut(self.len)?;
+        *slot = KeptSlot {
+            key,
+            base: self.used,
+            ready: 0,
+        };
+        self.len += 1;
+        self.used += words;
+        Some(self.len - 1)
+    }
+
+    /// First word of `slot`'s weights (0 without a slot).
+    #[inline(always)]
+    fn base(&self, slot: Option<usize>) -> usize {
+        slot.and_then(|i| self.slots.get(i)).map_or(0, |s| s.base)
+    }
+
+    /// Whether `slot` holds the weights of ready bit `bit` laid out already; marks them laid
+    /// out from now on. Always false without a slot.
+    #[inline(always)]
+    fn laid_out(&mut self, slot: Option<usize>, bit: u64) -> bool {
+        match slot.and_then(|i| self.slots.get_mut(i)) {
+            Some(s) => {
+                let was = s.ready & bit != 0;
+                s.ready |= bit;
+                was
+            }
+            None => false,
+        }
     }
 }
 
@@ -1227,9 +1300,9 @@ pub(crate) fn transposed<R: Apply>(
     };
     // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
     let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
-    let key = layer.map(|l| (l, shape.kernel, shape.stride, ic, oc));
-    let keep = scratch.kept.start(key, all, sd, sh);
-    let mut phase_base = 0;
+    let key = layer.map(|l| (l, shape.stride));
+    let slot = scratch.kept.claim(key, all, sd, sh);
+    let mut phase_base = scratch.kept.base(slot);
     let table = row_words(rq);
     let words = table
         .as_ref()
@@ -1247,14 +1320,13 @@ pub(crate) fn transposed<R: Apply>(
         let (tz, (z0, nz)) = (phase_taps(kd, sd, fz), phase_first(fz, sd, pd, od));
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), phase_first(fy, sh, ph, oh));
-            let base = if keep { phase_base } else { 0 };
+            let base = if slot.is_some() { phase_base } else { 0 };
             phase_base += phase_words(fz, fy);
             if nz * ny == 0 {
                 continue;
             }
             let bit = 1u64 << ((fz * MAX_STRIDE + fy) % 64);
-            let laid_out = keep && kept.ready & bit != 0;
-            kept.ready |= if keep { bit } else { 0 };
+            let laid_out = kept.laid_out(slot, bit);
             let v_len = ic * tz * ty;
             let vp = up4(v_len);
             let vw = vp / 2;
@@ -1606,6 +1678,52 @@ pub(crate) fn im2col_engine(
 mod tests {
     use super::*;
     use crate::config;
+
+    #[test]
+    fn kept_weights_pack_layers_and_forget_them_when_overwritten() {
+        let mut k = KeptWeights::default();
+        let s2 = [2; 3];
+        // Not keeping: no slot.
+        assert_eq!(k.claim(Some((0, s2)), 100, 2, 2), None);
+        k.on = true;
+        let a = k.claim(Some((0, s2)), 100, 2, 2);
+        let b = k.claim(Some((1, s2)), 200, 2, 2);
+        assert_eq!((a, b), (Some(0), Some(1)));
+        assert_eq!((k.base(a), k.base(b)), (0, 100));
+        // The same layer again: its slot, ready bits kept.
+        assert!(!k.laid_out(b, 1));
+        assert_eq!(k.claim(Some((1, s2)), 200, 2, 2), b);
+        assert!(k.laid_out(b, 1));
+        assert!(!k.laid_out(b, 2));
+        // Another stride is another layout.
+        assert_eq!(k.claim(Some((1, [1; 3])), 200, 1, 1), Some(2));
+        // Too big for what is left: everything forgotten, the new layer from word 0.
+        let c = k.claim(Some((3, s2)), WEIGHT_WORDS - 100, 2, 2);
+        assert_eq!((c, k.base(c)), (Some(0), 0));
+        assert!(!k.laid_out(c, 1));
+        assert_eq!(k.claim(Some((1, s2)), 200, 2, 2), Some(0));
+        assert!(
+            !k.laid_out(Some(0), 1),
+            "layer 1 was laid out again over layer 3"
+        );
+        // A call that cannot keep (no layer) writes from word 0: nothing stays kept.
+        assert_eq!(k.claim(None, 10, 1, 1), None);
+        assert_eq!(k.claim(Some((1, s2)), 200, 2, 2), Some(0));
+        assert!(!k.laid_out(Some(0), 1));
+        // More layers than slots: the first slot again.
+        k.on = true;
+        k.len = 0;
+        k.used = 0;
+        for l in 0..MAX_KEPT {
+            assert_eq!(k.claim(Some((l, s2)), 10, 2, 2), Some(l));
+        }
+        assert_eq!(k.claim(Some((MAX_KEPT, s2)), 10, 2, 2), Some(0));
+        assert_eq!(k.base(Some(0)), 0);
+        // Too large to keep at all, or strides past the ready bits.
+        assert_eq!(k.claim(Some((9, s2)), WEIGHT_WORDS + 1, 2, 2), None);
+        assert_eq!(k.claim(Some((9, s2)), 10, MAX_STRIDE + 1, 1), None);
+        assert_eq!(k.len, 0);
+    }
 
     #[test]
     fn line_words_come_from_the_layers_fit_formulas() {

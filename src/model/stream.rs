@@ -103,13 +103,22 @@ impl<'a> Model<'a> {
         let s = FEATURE_STREAMS.0[last];
         let plane = l.out_size[0] * l.out_size[1];
         let n = s.rows * l.out_size[1];
+        // Each layer runs once per chunk: its weights are laid out once per view (the four
+        // layers' fit the line engine's buffer side by side).
+        ws.scratch.keep_weights();
+        let mut chunks = Ok(());
         for j in 0..FEATURE_CHUNKS {
-            self.feature_chunk(last, j, image, &mut ws.buf, &mut ws.scratch, &mut state)?;
+            chunks = self.feature_chunk(last, j, image, &mut ws.buf, &mut ws.scratch, &mut state);
+            if chunks.is_err() {
+                break;
+            }
             for (c, dst) in features.chunks_exact_mut(plane).enumerate() {
                 let src = s.chunk_start + c * n;
                 dst[j * n..(j + 1) * n].copy_from_slice(&ws.buf[src..src + n]);
             }
         }
+        ws.scratch.forget_weights();
+        chunks?;
         probe(&stage_name("", 0..FEATURE_LAYERS), features);
         Ok(())
     }
@@ -255,7 +264,11 @@ impl<'a> Model<'a> {
             self.cost[sources.len() - 1],
         )?;
         let Workspace { buf, scratch } = ws;
-        self.stream_d1(&cost, buf, scratch)?;
+        // d1 runs once per plane and row chunk: its weights laid out once.
+        scratch.keep_weights();
+        let d1 = self.stream_d1(&cost, buf, scratch);
+        scratch.forget_weights();
+        d1?;
         let (s, l) = unet_range(PLAN.0[D1]);
         probe(&stage_name("cost", D1..D1 + 1), &buf[s..s + l]);
         // The small middle of the UNet, whole tensors in the UNet buffer as planned.
