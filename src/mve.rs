@@ -201,11 +201,15 @@ pub fn pack_strided_quads(
 /// A whole line fill with Helium (the line engine's, `kernels::line`): for each pair `k` of
 /// `rows` (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw]
 /// = pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what
-/// [`crate::dsp::pack_rows`] does for one word, for up to 16 words in one call. The pair loop
-/// is assembly too: 6 instructions per line word around the 8-instruction block of four
-/// columns (the Rust loop around [`pack_row_quads`] spent about 100 per word choosing the
-/// rows and checking slices). Returns false, doing nothing, for an odd number of rows, `need`
-/// not a positive multiple of 4, or a `dst` too short.
+/// [`crate::dsp::pack_rows`] does for one word, for up to 16 words in one call. Eight columns
+/// per pass: byte loads widened to 16-bit lanes, the offsets added in them, `VSRI`/`VSLI`
+/// pair the two rows' values of the odd and the even columns into words, two scatter stores
+/// write the eight line words (11 instructions per eight columns; a tail-predicated loop, so
+/// the last pass of a fill of `8m + 4` columns loads and stores four; a fill of four columns
+/// takes one 4-column block instead, 10 instructions per line word). The pair loop is
+/// assembly too: 6 instructions per line word (the Rust loop around [`pack_row_quads`] spent
+/// about 100 per word choosing the rows and checking slices). Returns false, doing nothing,
+/// for an odd number of rows, `need` not a positive multiple of 4, or a `dst` too short.
 pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'_>) -> bool {
     let Some((pairs, quads)) = rows.fill_shape(dst.len(), vw) else {
         return false;
@@ -214,49 +218,92 @@ pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'
         return true;
     }
     // SAFETY: pair k reads rows[2k] and rows[2k + 1] (k < pairs, 2·pairs = rows.len ≤
-    // CAPACITY, written; MaybeUninit<LineRow> has LineRow's layout), need bytes of each from its address (every pushed row holds at least need
-    // bytes, and the borrow 'a keeps them alive), and writes dst[k + j·vw] for j < need (the
-    // last index, checked by fill_shape, is in bounds); need / 4 ≥ 1 and pairs ≥ 1, so the
-    // `DLS`/`LE` loop runs exactly need / 4 times per pair and the pair loop pairs times.
+    // CAPACITY, written; MaybeUninit<LineRow> has LineRow's layout), need = 4·quads bytes of
+    // each from its address (every pushed row holds at least need bytes, and the borrow 'a
+    // keeps them alive; the tail predication of `DLSTP.16` with need elements stops the loads
+    // there), and writes dst[k + j·vw] for j < need (the last index, checked by fill_shape, is
+    // in bounds; a word lane of the stores is enabled exactly when its column is below need,
+    // the predicate of its low halfword's element). need ≥ 4 and pairs ≥ 1, so each pair's
+    // loop runs ceil(need / 8) times and the pair loop pairs times. With need = 4 (quads 1),
+    // each pair's block reads 4 bytes of each row and writes dst[k + j·vw] for j < 4.
     #[allow(unsafe_code)]
     unsafe {
-        core::arch::asm!(
-            // Scatter offsets in words, columns j .. j + 4 of a block: [0, 1, 2, 3] · vw.
-            "vidup.u32    q2, r2, #1",
-            "vmul.i32     q2, q2, {dp}",
-            "2:",
-            "ldm   {tbl}!, {{r1, r2, r3, r4}}",
-            "mov   {dp}, {dk}",
-            "dls   lr, {quads}",
-            "3:",
-            "vldrb.s32    q0, [r1], #4",
-            "vldrb.s32    q1, [r3], #4",
-            "vadd.i32     q0, q0, r2",
-            "vadd.i32     q1, q1, r4",
-            "vsli.32      q0, q1, #16",
-            "vstrw.32     q0, [{dp}, q2, uxtw #2]",
-            "add   {dp}, {dp}, {sb}",
-            "le    lr, 3b",
-            "add   {dk}, {dk}, #4",
-            "subs  r0, r0, #1",
-            "bne   2b",
-            inout("r0") pairs => _,
-            // The widening byte loads take only low registers as their base; `VIDUP` takes
-            // its start in an even register.
-            out("r1") _,
-            inout("r2") 0u32 => _,
-            out("r3") _,
-            out("r4") _,
-            tbl = inout(reg) rows.rows.as_ptr() => _,
-            dk = inout(reg) dst.as_mut_ptr() => _,
-            dp = inout(reg) vw => _,
-            sb = in(reg) vw * 16,
-            quads = in(reg) quads,
-            out("lr") _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _,
-            options(nostack),
-        );
+        // Four columns: one block of four, no inner loop (10 instructions per line word; the
+        // eight-column loop would take 17).
+        if quads == 1 {
+            core::arch::asm!(
+                // Scatter offsets in words, columns j .. j + 4 of a block: [0, 1, 2, 3] · vw.
+                "vidup.u32    q2, r2, #1",
+                "vmul.i32     q2, q2, {dp}",
+                "2:",
+                "ldm   {tbl}!, {{r1, r2, r3, r4}}",
+                "vldrb.s32    q0, [r1]",
+                "vldrb.s32    q1, [r3]",
+                "vadd.i32     q0, q0, r2",
+                "vadd.i32     q1, q1, r4",
+                "vsli.32      q0, q1, #16",
+                "vstrw.32     q0, [{dk}, q2, uxtw #2]",
+                "add   {dk}, {dk}, #4",
+                "subs  r0, r0, #1",
+                "bne   2b",
+                inout("r0") pairs => _,
+                out("r1") _,
+                inout("r2") 0u32 => _,
+                out("r3") _,
+                out("r4") _,
+                tbl = inout(reg) rows.rows.as_ptr() => _,
+                dk = inout(reg) dst.as_mut_ptr() => _,
+                dp = inout(reg) vw => _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _,
+                options(nostack),
+            );
+        } else {
+            core::arch::asm!(
+                // Scatter offsets in words: the even columns [0, 2, 4, 6] · vw, the odd ones vw on.
+                "vidup.u32    q2, r2, #2",
+                "vmul.i32     q2, q2, {dp}",
+                "vadd.i32     q3, q2, {dp}",
+                "2:",
+                "ldm   {tbl}!, {{r1, r2, r3, r4}}",
+                "mov   {dp}, {dk}",
+                "dlstp.16     lr, {need}",
+                "3:",
+                "vldrb.s16    q0, [r1], #8",
+                "vldrb.s16    q1, [r3], #8",
+                "vadd.i16     q0, q0, r2",
+                "vadd.i16     q1, q1, r4",
+                // Word lane i of q0 holds columns 2i, 2i + 1 of row a, of q1 those of row b.
+                "vmov         q4, q1",
+                "vsri.32      q1, q0, #16",
+                "vsli.32      q0, q4, #16",
+                "vstrw.32     q0, [{dp}, q2, uxtw #2]",
+                "vstrw.32     q1, [{dp}, q3, uxtw #2]",
+                "add   {dp}, {dp}, {sb}",
+                "letp  lr, 3b",
+                "add   {dk}, {dk}, #4",
+                "subs  r0, r0, #1",
+                "bne   2b",
+                inout("r0") pairs => _,
+                // The widening byte loads take only low registers as their base; `VIDUP` takes
+                // its start in an even register.
+                out("r1") _,
+                inout("r2") 0u32 => _,
+                out("r3") _,
+                out("r4") _,
+                tbl = inout(reg) rows.rows.as_ptr() => _,
+                dk = inout(reg) dst.as_mut_ptr() => _,
+                dp = inout(reg) vw => _,
+                // Used from a second pass on: then 8 · vw words lie within dst.
+                sb = in(reg) vw.wrapping_mul(32),
+                need = in(reg) 4 * quads,
+                out("lr") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                out("d8") _, out("d9") _,
+                options(nostack),
+            );
+        }
     }
     true
 }
