@@ -13,7 +13,9 @@
 # CALIB_SAMPLES (default 256) sets the quantiser's calibration samples; CE_WEIGHT adds the
 # two-hot cross-entropy term to the loss (`train --ce-weight`, docs/ACCURACY.md); NO_RETURN_WEIGHT
 # adds the no-return term (`train --no-return-weight`: the end bins' mass against the label's
-# "met nothing" / "nearer than the window", what the spec's `no_return_mass` decides on).
+# "met nothing" / "nearer than the window", what the spec's `no_return_mass` decides on);
+# FAKE_QUANT=weights/general trains quantisation-aware on that folder's activation scales
+# (`train --fake-quant`, docs/QUANTISATION.md).
 # VIEWS=3 trains a three-view model (rolls 0, +7, +14 degrees; give it a DATA_ROOT of its own,
 # the data are simulated with the third view): the manifest and the blob record the count, and
 # eval, run and the firmware's pairing follow it.
@@ -66,7 +68,7 @@ srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/tes
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
 "${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
   --val-limit $((3 * val_n)) --resume --out "$weights" "${views[@]}" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"} ${CE_WEIGHT:+--ce-weight "$CE_WEIGHT"} \
-  ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"}
+  ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"} ${FAKE_QUANT:+--fake-quant "$FAKE_QUANT"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples "$calib_n" --percentile 99.99 \
   --search --search-passes "$passes" --search-pixels "$pixels"
 for scene in "${scenes[@]}"; do

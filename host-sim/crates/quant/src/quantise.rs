@@ -78,6 +78,11 @@ pub struct QuantiseArgs {
     /// window), or all pixels, as the paper's MAE counts them (rays that meet nothing too).
     #[arg(long, value_enum, default_value_t = SearchPixels::Mask)]
     pub search_pixels: SearchPixels,
+    /// Take every activation scale from this folder's `quantisation.json` instead of
+    /// calibrating: for a model trained quantisation-aware on those scales (`train
+    /// --fake-quant`), whose activations were clipped and rounded to them.
+    #[arg(long, requires = "weights", conflicts_with_all = ["search", "random_init"])]
+    pub ranges_from: Option<PathBuf>,
     /// Output folder for the blob and `quantisation.json`.
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -87,6 +92,37 @@ pub struct QuantiseArgs {
     /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
     #[arg(long, conflicts_with_all = ["weights", "random_init"])]
     pub restamp: Option<PathBuf>,
+}
+
+/// The activation ranges (scale × top code) `quantisation.json` of `dir` records, for exactly
+/// the tensors `calibrated` has: a missing or extra one means another network.
+fn recorded_ranges(dir: &Path, calibrated: &ActivationRanges) -> Result<ActivationRanges> {
+    let path = dir.join("quantisation.json");
+    let v: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&path).with_context(|| format!("--ranges-from: {}", path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", path.display()))?;
+    let scales = v["quantisation"]["activation_scales"]
+        .as_object()
+        .with_context(|| format!("{} has no quantisation.activation_scales", path.display()))?;
+    let mut ranges = ActivationRanges::new();
+    for name in calibrated.keys() {
+        let s = scales
+            .get(name)
+            .and_then(|s| s.as_f64())
+            .with_context(|| format!("{} has no scale for {name}", path.display()))?;
+        ranges.insert(name.clone(), s * top_code(name));
+    }
+    let extra: Vec<&String> = scales
+        .keys()
+        .filter(|n| n.as_str() != "input" && !calibrated.contains_key(*n))
+        .collect();
+    ensure!(
+        extra.is_empty(),
+        "{} has scales for {extra:?}, which this network does not have",
+        path.display()
+    );
+    Ok(ranges)
 }
 
 /// `quantise --restamp DIR`: the blob of `DIR` carrying the current spec's CRC.
@@ -248,7 +284,13 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         _ => bail!("give --weights DIR --calib DATA, or --random-init SEED"),
     };
     let magnitudes = SortedMagnitudes::new(&traces);
-    let (ranges, search) = if args.search {
+    let (ranges, search) = if let Some(from) = &args.ranges_from {
+        let ranges = recorded_ranges(from, &magnitudes.ranges(args.percentile))?;
+        if let serde_json::Value::Object(m) = &mut source {
+            m.insert("ranges_from".into(), from.display().to_string().into());
+        }
+        (ranges, None)
+    } else if args.search {
         let (r, s) = search(
             &weights,
             &magnitudes,

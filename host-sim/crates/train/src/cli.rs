@@ -1,6 +1,6 @@
 //! `host-sim train`: resumable training with loss curves, checkpoints and a manifest.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -10,7 +10,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::train::{lr_at, Trainer};
-use super::{load_safetensors, parse_spec, save_safetensors, SplitMix64, SPEC_FILE, WEIGHTS_FILE};
+use super::{
+    load_safetensors, parse_spec, save_safetensors, Grid, SplitMix64, SPEC_FILE, WEIGHTS_FILE,
+};
 use epssn_eval::data::{load_dir, split_dir, Sample};
 use epssn_eval::summary::data_summary;
 
@@ -80,6 +82,12 @@ pub struct TrainArgs {
     /// resumed run must pass the same weight.
     #[arg(long, default_value_t = 0.0)]
     pub no_return_weight: f64,
+    /// Quantisation-aware training: round every activation, in each forward pass, to the int8
+    /// grid of the activation scales in this folder's `quantisation.json` (a quantised model of
+    /// the same spec, usually the one `--init-from` names), the gradient passing the rounding
+    /// unchanged. A resumed run must pass the same scales.
+    #[arg(long)]
+    pub fake_quant: Option<PathBuf>,
 }
 
 /// One row of the loss history.
@@ -118,6 +126,53 @@ struct TrainState {
     /// The no-return term's weight; 0 in checkpoints written before `--no-return-weight`.
     #[serde(default)]
     no_return_weight: f64,
+    /// The activation scales of `--fake-quant`; empty without it (and in checkpoints written
+    /// before it).
+    #[serde(default)]
+    fake_quant: BTreeMap<String, f64>,
+}
+
+/// The activation scales of a quantised weights folder (`quantisation.json`), the input's
+/// excepted (the network divides by 255 itself).
+fn activation_scales(dir: &Path) -> Result<BTreeMap<String, f64>> {
+    let path = dir.join("quantisation.json");
+    let v: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&path).with_context(|| format!("--fake-quant: {}", path.display()))?,
+    )
+    .with_context(|| format!("parsing {}", path.display()))?;
+    let table = v["quantisation"]["activation_scales"]
+        .as_object()
+        .with_context(|| format!("{} has no quantisation.activation_scales", path.display()))?;
+    let mut scales = BTreeMap::new();
+    for (name, s) in table.iter().filter(|(n, _)| n.as_str() != "input") {
+        let s = s
+            .as_f64()
+            .with_context(|| format!("{}: the scale of {name} is not a number", path.display()))?;
+        scales.insert(name.clone(), s);
+    }
+    ensure!(
+        !scales.is_empty(),
+        "{} lists no activation scales",
+        path.display()
+    );
+    Ok(scales)
+}
+
+/// The int8 grids of `scales`: codes 0..=255 for the unsigned cost volume, −128..=127 for
+/// every other tensor (docs/QUANTISATION.md "Numbers").
+fn grids(scales: &BTreeMap<String, f64>) -> BTreeMap<String, Grid> {
+    scales
+        .iter()
+        .map(|(name, &scale)| {
+            let (lo, hi) = if name == "cost" {
+                (0.0, 255.0)
+            } else {
+                (-128.0, 127.0)
+            };
+            let scale = scale as f32;
+            (name.clone(), Grid { scale, lo, hi })
+        })
+        .collect()
 }
 
 fn write_csv(path: &Path, rows: &[LossRow]) -> Result<()> {
@@ -212,6 +267,7 @@ fn finished_run_state(out: &Path, seed: u64, batch: usize, views: usize) -> Resu
         lr: None,
         ce_weight: 0.0,
         no_return_weight: 0.0,
+        fake_quant: BTreeMap::new(),
     })
 }
 
@@ -246,6 +302,8 @@ struct Plan {
     steps_per_epoch: usize,
     total_steps: usize,
     lr: f64,
+    /// `--fake-quant`'s activation scales (empty without it).
+    fake_quant: BTreeMap<String, f64>,
 }
 
 impl Plan {
@@ -315,6 +373,10 @@ impl Plan {
             val_set,
             steps_per_epoch,
             lr,
+            fake_quant: match &args.fake_quant {
+                Some(dir) => activation_scales(dir)?,
+                None => BTreeMap::new(),
+            },
         })
     }
 }
@@ -331,6 +393,10 @@ pub fn train(args: &TrainArgs) -> Result<()> {
     let (mut trainer, mut state) = start_or_resume(args, &plan)?;
     trainer.ce_weight = args.ce_weight as f32;
     trainer.no_return_weight = args.no_return_weight as f32;
+    trainer
+        .model
+        .statics
+        .set_fake_quant(grids(&plan.fake_quant))?;
     run_epochs(args, &plan, &mut trainer, &mut state, started)?;
 
     let mut meta = HashMap::new();
@@ -358,6 +424,7 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
         lr: Some(lr),
         ce_weight: args.ce_weight,
         no_return_weight: args.no_return_weight,
+        fake_quant: plan.fake_quant.clone(),
         ..state
     };
     if args.resume && ckpt.join("state.json").exists() {
@@ -383,6 +450,11 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
             state.no_return_weight == args.no_return_weight,
             "checkpoint was made with --no-return-weight {}: pass the same weight",
             state.no_return_weight
+        );
+        ensure!(
+            state.fake_quant == plan.fake_quant,
+            "checkpoint was made with other --fake-quant scales ({:?}): pass the same folder",
+            state.fake_quant
         );
         let tensors = load_safetensors(&ckpt.join(WEIGHTS_FILE))?;
         let t = Trainer::from_checkpoint(spec, &tensors, Some(&ckpt.join("optim.bpk")), views)?;
@@ -433,6 +505,7 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
         lr: Some(lr),
         ce_weight: args.ce_weight,
         no_return_weight: args.no_return_weight,
+        fake_quant: plan.fake_quant.clone(),
     };
     Ok((t, s))
 }
@@ -536,6 +609,10 @@ fn manifest(args: &TrainArgs, plan: &Plan, state: &TrainState) -> serde_json::Va
         "lambda": spec.training.lambda,
         "ce_weight": args.ce_weight,
         "no_return_weight": args.no_return_weight,
+        "fake_quant": args.fake_quant.as_ref().map(|d| serde_json::json!({
+            "from": d.display().to_string(),
+            "activation_scales": plan.fake_quant,
+        })),
         "final_train_loss": last.map(|r| r.train_loss),
         "final_val_loss": last.map(|r| r.val_loss),
         "wall_time_s": state.elapsed_s,
@@ -553,6 +630,9 @@ fn loss_text(args: &TrainArgs) -> String {
         s += " + no_return_weight * mean over pixels of w*(BCE(p_last, d >= r_max) + BCE(p_first, d <= r_min)), the two-hot of an out-of-window label on its end bin";
     }
     s += ", w = lambda on mask pixels, 1 elsewhere";
+    if args.fake_quant.is_some() {
+        s += "; every activation rounded to its int8 grid in the forward pass (fake_quant), straight-through gradient";
+    }
     if args.ce_weight > 0.0 || args.no_return_weight > 0.0 {
         s += "; val_loss is the first term";
     }

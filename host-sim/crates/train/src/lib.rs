@@ -145,6 +145,32 @@ pub struct Statics {
     pub r_min: f32,
     /// Range window end, metres.
     pub r_max: f32,
+    /// Quantisation-aware training: the int8 grid each named activation is rounded to in the
+    /// forward pass (empty: none). See [`Statics::set_fake_quant`].
+    fake_quant: BTreeMap<String, Grid>,
+}
+
+/// The int8 grid of one activation tensor: its scale and the codes its values may take.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grid {
+    /// Real value of one code.
+    pub scale: f32,
+    /// Lowest code (−128; 0 for the unsigned cost volume).
+    pub lo: f32,
+    /// Highest code (127; 255 for the unsigned cost volume).
+    pub hi: f32,
+}
+
+/// `x` clipped to `grid`'s range and rounded to its codes in the forward pass; the gradient is
+/// the clip's (the straight-through estimator: the rounding passes it unchanged).
+fn fake_quant<const D: usize>(x: Tensor<D>, grid: Grid) -> Tensor<D> {
+    let clipped = x.clamp(grid.lo * grid.scale, grid.hi * grid.scale);
+    let rounded = clipped
+        .clone()
+        .div_scalar(grid.scale)
+        .round()
+        .mul_scalar(grid.scale);
+    clipped.clone() + (rounded - clipped).detach()
 }
 
 /// The float EPSSN: trainable net plus its statics.
@@ -226,9 +252,40 @@ impl Statics {
             depth_bins: grids.depth_bin_ranges.iter().map(|&r| r as f32).collect(),
             r_min: grids.r_min as f32,
             r_max: grids.r_max as f32,
+            fake_quant: BTreeMap::new(),
         };
         statics.check_shapes()?;
         Ok(statics)
+    }
+
+    /// Rounds the named activations (the feature layers, `cost`, the cost-net layers and
+    /// `head`, each where the int8 network stores it: after its ReLU and skip add) to their
+    /// int8 grids in every forward pass, so that training sees the rounding the quantised
+    /// network does (quantisation-aware training, docs/QUANTISATION.md). Every grid must name
+    /// an activation of the spec and have a positive scale; an empty map turns it off.
+    pub fn set_fake_quant(&mut self, grids: BTreeMap<String, Grid>) -> Result<()> {
+        for (name, g) in &grids {
+            ensure!(
+                name == "cost"
+                    || self.feature_names.contains(name)
+                    || self.cost_names.contains(name),
+                "fake quantisation names `{name}`, which is not an activation of the spec"
+            );
+            ensure!(
+                g.scale.is_finite() && g.scale > 0.0 && g.lo < g.hi,
+                "fake quantisation grid of {name} is {g:?}"
+            );
+        }
+        self.fake_quant = grids;
+        Ok(())
+    }
+
+    /// `x` on the grid of activation `name` when quantisation-aware training is on.
+    fn quantised<const D: usize>(&self, name: &str, x: Tensor<D>) -> Tensor<D> {
+        match self.fake_quant.get(name) {
+            Some(&g) => fake_quant(x, g),
+            None => x,
+        }
     }
 
     /// Walks the layer chain with the spec's sizes and checks every hand-over.
@@ -656,6 +713,7 @@ impl EpssnModel {
             if st.feature_relu[i] {
                 x = relu(x);
             }
+            x = st.quantised(&st.feature_names[i], x);
             if recording {
                 record(&st.feature_names[i], x.to_data());
             }
@@ -699,6 +757,7 @@ impl EpssnModel {
                 1,
             )
         };
+        let cost = st.quantised("cost", cost);
         if recording {
             record("cost", cost.to_data());
         }
@@ -726,6 +785,7 @@ impl EpssnModel {
                     .ok_or_else(|| anyhow!("unknown skip {skip}"))?;
                 y = y + s.clone();
             }
+            y = st.quantised(&st.cost_names[i], y);
             if recording {
                 record(&st.cost_names[i], y.to_data());
             }
@@ -967,6 +1027,52 @@ mod tests {
                 "the table has visible and invisible entries"
             );
         }
+    }
+
+    #[test]
+    fn fake_quant_rounds_to_the_grid_and_passes_the_gradient_inside_it() {
+        let device = Device::flex().autodiff();
+        let grid = Grid {
+            scale: 0.5,
+            lo: -128.0,
+            hi: 127.0,
+        };
+        let x = [0.2f32, 0.26, -0.74, 63.4, 64.0, -70.0];
+        let t =
+            Tensor::<1>::from_data(TensorData::new(x.to_vec(), [x.len()]), &device).require_grad();
+        let y = fake_quant(t.clone(), grid);
+        let got = y.clone().into_data().try_to_vec::<f32>().unwrap();
+        // Rounded to multiples of 0.5 (ties away from zero is not needed: none is a tie), the
+        // range [−64, 63.5] clipping the last two.
+        assert_eq!(got, vec![0.0, 0.5, -0.5, 63.5, 63.5, -64.0]);
+        let grads = y.sum().backward();
+        let g = t
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert_eq!(g, vec![1.0, 1.0, 1.0, 1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn set_fake_quant_refuses_unknown_tensors_and_bad_scales() {
+        let mut st = Statics::new(&spec()).unwrap();
+        let g = Grid {
+            scale: 0.1,
+            lo: 0.0,
+            hi: 255.0,
+        };
+        assert!(st
+            .set_fake_quant(BTreeMap::from([("cost".into(), g)]))
+            .is_ok());
+        assert!(st
+            .set_fake_quant(BTreeMap::from([("nope".into(), g)]))
+            .is_err());
+        let bad = Grid { scale: 0.0, ..g };
+        assert!(st
+            .set_fake_quant(BTreeMap::from([("cost".into(), bad)]))
+            .is_err());
     }
 
     #[test]
