@@ -308,6 +308,160 @@ pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'
     true
 }
 
+/// A channel-minor line fill (the `mve` line engine's, `kernels::line`): tap `t` (channel
+/// 0's row at `input[at[t] ..]`, channel `i`'s `i · cs` bytes on; `usize::MAX`: outside the
+/// input, zeros) fills words `t · channels / 2 ..` of every column, channels `2k` and `2k + 1`
+/// in word `k` of the tap: `dst[t · channels / 2 + k + j · vw] = pack(row_{2k}[j] + off,
+/// row_{2k+1}[j] + off)` for `j < need` (zero rows add no offset). The row addresses are
+/// computed here, so no table of rows is built (the channel-major fill hands each row out
+/// through one, about 7 instructions per row); the slices are checked once per line. Eight
+/// columns per pass as [`pack_line_quads`] (11 instructions), a fill of four columns in one
+/// block (11 instructions per word). Returns false, doing nothing, for an odd or zero
+/// `channels`, `need` not a positive multiple of 4 or over 256, a tap's last channel's row
+/// not within `input`, or a `dst` too short.
+pub fn fill_channel_pairs(
+    dst: &mut [u32],
+    vw: usize,
+    need: usize,
+    (input, at): (&[i8], &[usize]),
+    (channels, cs): (usize, usize),
+    off: i16,
+) -> bool {
+    static ZERO_ROW: [i8; 256] = [0; 256];
+    let pairs = channels / 2;
+    let words = at.len().checked_mul(pairs);
+    let last_row = channels.checked_sub(1).and_then(|c| c.checked_mul(cs));
+    let rows_fit = at.iter().all(|&a| {
+        a == usize::MAX
+            || last_row
+                .and_then(|r| r.checked_add(a))
+                .and_then(|r| r.checked_add(need))
+                .is_some_and(|e| e <= input.len())
+    });
+    let dst_fits = need
+        .checked_sub(1)
+        .and_then(|j| j.checked_mul(vw))
+        .zip(words)
+        .and_then(|(e, w)| e.checked_add(w.checked_sub(1)?))
+        .is_some_and(|last| last < dst.len());
+    if pairs == 0
+        || !channels.is_multiple_of(2)
+        || need == 0
+        || !need.is_multiple_of(4)
+        || need > ZERO_ROW.len()
+        || !rows_fit
+        || !dst_fits
+        || vw > u32::MAX as usize / 32
+        || cs > i32::MAX as usize / 2
+    {
+        return false;
+    }
+    let passes = 8 * need.div_ceil(8) as i32;
+    for (t, &a) in at.iter().enumerate() {
+        let (row, step, off) = if a == usize::MAX {
+            (ZERO_ROW.as_ptr(), 0, 0)
+        } else {
+            (input.as_ptr().wrapping_add(a), cs, off)
+        };
+        let dk = dst.as_mut_ptr().wrapping_add(t * pairs);
+        // The first row's address after the passes of the eight-column loop, to the next
+        // pair's: the loads moved it on 8 bytes per pass.
+        let adv = (2 * step as i32).wrapping_sub(passes);
+        // SAFETY (checked above): pair k of tap t reads need bytes from row + 2k·step and
+        // row + (2k + 1)·step, within input (the last channel's row ends by input.len()) or
+        // the zero row (step 0, need ≤ 256), and writes dst[t·pairs + k + j·vw] for j < need,
+        // at most (need − 1)·vw + at.len()·pairs − 1, in bounds. In the eight-column loop the
+        // tail predication of `DLSTP.16` with need elements stops the loads at need bytes and
+        // enables a store's word lane exactly when its column is below need (as in
+        // pack_line_quads); it runs ceil(need / 8) passes, after which `adv` takes the first
+        // row's pointer to the next pair's. pairs ≥ 1, so the pair loop runs pairs times.
+        #[allow(unsafe_code)]
+        unsafe {
+            if need == 4 {
+                core::arch::asm!(
+                    // Scatter offsets in words, the four columns: [0, 1, 2, 3] · vw.
+                    "vidup.u32    q2, r2, #1",
+                    "vmul.i32     q2, q2, {vw}",
+                    "2:",
+                    "add   r3, r1, {cs}",
+                    "vldrb.s32    q0, [r1]",
+                    "vldrb.s32    q1, [r3]",
+                    "vadd.i32     q0, q0, {off}",
+                    "vadd.i32     q1, q1, {off}",
+                    "vsli.32      q0, q1, #16",
+                    "vstrw.32     q0, [{dk}, q2, uxtw #2]",
+                    "add   r1, r1, {cs}, lsl #1",
+                    "add   {dk}, {dk}, #4",
+                    "subs  r0, r0, #1",
+                    "bne   2b",
+                    inout("r0") pairs => _,
+                    // The widening byte loads take only low registers as their base; `VIDUP`
+                    // takes its start in an even register.
+                    inout("r1") row => _,
+                    inout("r2") 0u32 => _,
+                    out("r3") _,
+                    dk = inout(reg) dk => _,
+                    vw = in(reg) vw,
+                    cs = in(reg) step,
+                    off = in(reg) off as i32,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _,
+                    options(nostack),
+                );
+            } else {
+                core::arch::asm!(
+                    // Scatter offsets in words: the even columns [0, 2, 4, 6] · vw, the odd
+                    // ones vw on; the offset in every 16-bit lane.
+                    "vidup.u32    q2, r2, #2",
+                    "vmul.i32     q2, q2, {dp}",
+                    "vadd.i32     q3, q2, {dp}",
+                    "vdup.16      q5, {off}",
+                    "2:",
+                    "add   r3, r1, {cs}",
+                    "mov   {dp}, {dk}",
+                    "dlstp.16     lr, {need}",
+                    "3:",
+                    "vldrb.s16    q0, [r1], #8",
+                    "vldrb.s16    q1, [r3], #8",
+                    "vadd.i16     q0, q0, q5",
+                    "vadd.i16     q1, q1, q5",
+                    // Word lane i of q0 holds columns 2i, 2i + 1 of the first row, of q1
+                    // those of the second.
+                    "vmov         q4, q1",
+                    "vsri.32      q1, q0, #16",
+                    "vsli.32      q0, q4, #16",
+                    "vstrw.32     q0, [{dp}, q2, uxtw #2]",
+                    "vstrw.32     q1, [{dp}, q3, uxtw #2]",
+                    "add   {dp}, {dp}, {sb}",
+                    "letp  lr, 3b",
+                    "add   r1, r1, {adv}",
+                    "add   {dk}, {dk}, #4",
+                    "subs  r0, r0, #1",
+                    "bne   2b",
+                    inout("r0") pairs => _,
+                    inout("r1") row => _,
+                    inout("r2") 0u32 => _,
+                    out("r3") _,
+                    dk = inout(reg) dk => _,
+                    dp = inout(reg) vw => _,
+                    // Used from a second pass on: then 8 · vw words lie within dst.
+                    sb = in(reg) vw * 32,
+                    need = in(reg) need,
+                    cs = in(reg) step,
+                    adv = in(reg) adv,
+                    off = in(reg) off as i32,
+                    out("lr") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                    out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                    options(nostack),
+                );
+            }
+        }
+    }
+    true
+}
+
 /// [`crate::dsp::dot2x2_row`]'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
 /// `acc0[q·astep] = bias[0] + x_q·w_0`, `acc0[(q + 1)·astep] = bias[0] + x_{q+1}·w_0` and the
 /// same with `acc1`, `bias[1]` and `w_1`, where `x_q = x[q·step .. q·step + n]` and the

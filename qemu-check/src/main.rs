@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps, fill_channel_pairs with mve): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -642,6 +642,11 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         runs += 2;
         bad += u32::from(!line_fill_agrees(rng, &bytes));
         bad += u32::from(!channel_taps_agree(rng, &bytes));
+        #[cfg(feature = "mve")]
+        {
+            runs += 1;
+            bad += u32::from(!channel_pairs_agree(rng, &bytes));
+        }
         // exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
         let mut exp = [0u16; 256];
         for e in exp.iter_mut() {
@@ -719,6 +724,90 @@ fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     for k in 0..words {
         let ((ra, oa), (rb, ob)) = (row(picked[2 * k]), row(picked[2 * k + 1]));
         pack_rows(&mut want[k..len * vw], vw, ra, rb, oa, ob);
+    }
+    got == want
+}
+
+/// `mve::fill_channel_pairs` (a channel-minor line fill: each tap's channel pairs from
+/// channel 0's row and the channel step) against `pack_rows` on the rows it names, zero
+/// rows for taps outside the input; words it must not write keep their value; a tap whose
+/// last channel's row leaves the input, or an odd channel count, is refused.
+#[cfg(feature = "mve")]
+fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::dsp::pack_rows;
+    use epssn::mve::fill_channel_pairs;
+    static ZEROS: [i8; 64] = [0; 64];
+    let need = 4 * (1 + (rng.next() % 12) as usize);
+    let taps = 1 + (rng.next() % 9) as usize;
+    let channels = 2 * (1 + (rng.next() % 4) as usize);
+    let cs = need + (rng.next() % 20) as usize;
+    let span = (channels - 1) * cs + need;
+    let off = if rng.next().is_multiple_of(2) {
+        128
+    } else {
+        -3
+    };
+    let mut at = [usize::MAX; 9];
+    for a in at[..taps].iter_mut() {
+        if !rng.next().is_multiple_of(4) {
+            *a = (rng.next() as usize) % (512 - span + 1);
+        }
+    }
+    let words = taps * channels / 2;
+    let vw = words + (rng.next() % 3) as usize;
+    let fill = rng.next() as u32;
+    let (mut got, mut want) = ([fill; 48 * 40], [fill; 48 * 40]);
+    let len = (need - 1) * vw + words;
+    if !fill_channel_pairs(
+        &mut got[..len],
+        vw,
+        need,
+        (bytes, &at[..taps]),
+        (channels, cs),
+        off,
+    ) {
+        return false;
+    }
+    for (t, &a) in at[..taps].iter().enumerate() {
+        for k in 0..channels / 2 {
+            let row = |c: usize| -> (&[i8], i16) {
+                if a == usize::MAX {
+                    (&ZEROS[..need], 0)
+                } else {
+                    (&bytes[a + c * cs..a + c * cs + need], off)
+                }
+            };
+            let ((ra, oa), (rb, ob)) = (row(2 * k), row(2 * k + 1));
+            pack_rows(&mut want[t * channels / 2 + k..len], vw, ra, rb, oa, ob);
+        }
+    }
+    // Refused: a row past the input, an odd channel count, a destination one word short.
+    let mut past = at;
+    past[0] = 512 - span + 1;
+    let mut spare = [0u32; 48 * 40];
+    if fill_channel_pairs(
+        &mut spare[..len],
+        vw,
+        need,
+        (bytes, &past[..taps]),
+        (channels, cs),
+        off,
+    ) || fill_channel_pairs(
+        &mut spare[..len],
+        vw,
+        need,
+        (bytes, &at[..taps]),
+        (3, cs),
+        off,
+    ) || fill_channel_pairs(
+        &mut spare[..len - 1],
+        vw,
+        need,
+        (bytes, &at[..taps]),
+        (channels, cs),
+        off,
+    ) {
+        return false;
     }
     got == want
 }

@@ -757,7 +757,26 @@ fn fill_taps(
     let vw = vp / 2;
     let len = hi.saturating_sub(lo).min(MAX_ROW);
     let per_channel = taps.na * taps.nb;
+    let minor = channel_minor(taps.channels, per_channel);
     if len == 0 || !len.is_multiple_of(4) || per_channel > MAX_ROW_TAPS {
+        if minor {
+            // The channel-minor entries one by one: tap t's row of channel i is channel 0's
+            // plus i · cs.
+            let at = channel0_rows(taps, per_channel, 0);
+            let (ic, cs) = (taps.channels, taps.cs);
+            let (mut t, mut i) = (0, 0);
+            fill(line, vp, cols, span, input, off, || {
+                let (ti, ii) = (t, i);
+                i += 1;
+                if i == ic {
+                    i = 0;
+                    t += 1;
+                }
+                let a = *at.get(ti).filter(|_| ti < per_channel)?;
+                (a != usize::MAX).then(|| a + ii * cs)
+            });
+            return;
+        }
         let mut cursor = TapCursor::new(taps);
         fill(line, vp, cols, span, input, off, || cursor.next_row());
         return;
@@ -774,15 +793,12 @@ fn fill_taps(
     }
     // Channel 0's row of every tap (a, b) from column in0 on, `usize::MAX` outside the
     // input; channel i's is that plus i · cs.
-    let mut at = [usize::MAX; MAX_ROW_TAPS];
-    let mut cursor = TapCursor::new(LineTaps {
-        channels: 1,
-        ..taps
-    });
-    for slot in at[..per_channel].iter_mut() {
-        if let Some(o) = cursor.next_row() {
-            *slot = o + in0;
-        }
+    let at = channel0_rows(taps, per_channel, in0);
+    #[cfg(feature = "mve")]
+    if minor {
+        let chans = (taps.channels, taps.cs);
+        fill_channel_pairs(words, vw, (lo, len), input, off, &at[..per_channel], chans);
+        return;
     }
     let chans = (taps.channels, taps.cs);
     let mut entries = ChannelTaps::new(input, &at[..per_channel], chans, (len, off), vp);
@@ -803,10 +819,78 @@ fn fill_taps(
     }
 }
 
+/// Channel 0's input row of each of the first `taps` taps of a line, plus `in0`;
+/// `usize::MAX` for a tap outside the input (and past `taps`).
+#[cfg(all(feature = "dsp", target_arch = "arm"))]
+#[inline(always)]
+fn channel0_rows(taps: LineTaps, count: usize, in0: usize) -> [usize; MAX_ROW_TAPS] {
+    let mut at = [usize::MAX; MAX_ROW_TAPS];
+    let mut cursor = TapCursor::new(LineTaps {
+        channels: 1,
+        ..taps
+    });
+    for slot in at.iter_mut().take(count) {
+        if let Some(o) = cursor.next_row() {
+            *slot = o + in0;
+        }
+    }
+    at
+}
+
+/// The channel-minor fill of a whole line ([`channel_minor`]) with Helium: the taps' channel
+/// pairs (`mve::fill_channel_pairs`), then the line's padding entries read zeros. `at`:
+/// channel 0's row of each tap ([`channel0_rows`]), `cs` the step to the next channel's; the
+/// columns `lo .. lo + len` are filled.
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+#[inline(always)]
+fn fill_channel_pairs(
+    words: &mut [u32],
+    vw: usize,
+    (lo, len): (usize, usize),
+    input: &[i8],
+    off: i16,
+    at: &[usize],
+    chans: (usize, usize),
+) {
+    let Some(dst) = words.get_mut(lo * vw..) else {
+        return;
+    };
+    if !crate::mve::fill_channel_pairs(dst, vw, len, (input, at), chans, off) {
+        return;
+    }
+    // Most layers have none: channels · taps is a multiple of 4.
+    let k0 = at.len() * (chans.0 / 2);
+    if k0 < vw {
+        for j in lo..lo + len {
+            for w in words.iter_mut().skip(j * vw + k0).take(vw - k0) {
+                *w = 0;
+            }
+        }
+    }
+}
+
 /// Most taps per channel (`na · nb`) [`fill_taps`] tabulates: 3 × 3 forward and 2 × 2
 /// transposed ones in the EPSSN layers.
 #[cfg(all(feature = "dsp", target_arch = "arm"))]
 const MAX_ROW_TAPS: usize = crate::dsp::ChannelTaps::MAX_TAPS;
+
+/// Whether a line's entries go channel-minor, `v = (tap, i)` (two channels of one tap fill a
+/// word, and the Helium fill computes their rows' addresses itself: `mve::pack_channel_pairs`),
+/// rather than channel-major, `v = (i, tap)`: with Helium, for an even number of `channels`
+/// whose `taps` per channel [`fill_taps`] tabulates. Each engine lays its weights out in the
+/// order its lines are filled in, so this one function decides both.
+#[inline(always)]
+const fn channel_minor(channels: usize, taps: usize) -> bool {
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    {
+        channels >= 2 && channels.is_multiple_of(2) && taps <= MAX_ROW_TAPS
+    }
+    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+    {
+        let _ = (channels, taps);
+        false
+    }
+}
 
 /// Line words of a row of `cols` columns of `vp` entries (two i16 per word). This and the
 /// helpers below are the fit formulas, shared by the run-time fit checks and the const
@@ -890,12 +974,18 @@ pub(crate) fn conv<R: Apply>(
     let off = params.input_offset as i16;
     let n = kw * vp / 2;
     let group = conv_group(n);
+    // Line entry v is (i, kz, ky), or (kz, ky, i) where the line goes channel-minor.
+    let minor = channel_minor(ic, kd * kh);
     let wv = |o: usize, kx: usize, v: usize| {
-        if v < v_len {
-            params.weights[(o * v_len + v) * kw + kx]
-        } else {
-            0
+        if v >= v_len {
+            return 0;
         }
+        let v = if minor {
+            v % ic * (kd * kh) + v / ic
+        } else {
+            v
+        };
+        params.weights[(o * v_len + v) * kw + kx]
     };
     // One group's weights may be kept; more groups take turns in the buffer.
     let key = layer.filter(|_| group >= oc).map(|l| (l, shape.stride));
@@ -1116,7 +1206,7 @@ struct Phase {
 type XPhase = (usize, usize, usize, usize, usize);
 
 /// `vbase[v]`: weight index of line entry `v = (i, a, b)` of phase `(fz, fy)` for output
-/// channel 0 and column tap 0.
+/// channel 0 and column tap 0 (`v = (a, b, i)` where the line goes channel-minor).
 #[inline(always)]
 fn phase_vbase(shape: &ConvShape, phase: &Phase, vbase: &mut [usize; MAX_V]) {
     let [kd, kh, kw] = shape.kernel;
@@ -1125,11 +1215,14 @@ fn phase_vbase(shape: &ConvShape, phase: &Phase, vbase: &mut [usize; MAX_V]) {
     let Phase { fz, fy, tz, ty, .. } = *phase;
     // ((i·oc·kd + kz)·kh + ky)·kw with kz = fz + a·sd, ky = fy + b·sh (counted up).
     let taps_o = kd * kh * kw;
+    // Line entry v is (i, a, b), or (a, b, i) where the line goes channel-minor.
+    let minor = channel_minor(ic, tz * ty);
     let mut v = 0;
     for i in 0..ic {
         for a in 0..tz {
             for b in 0..ty {
-                if let Some(slot) = vbase.get_mut(v) {
+                let at = if minor { (a * ty + b) * ic + i } else { v };
+                if let Some(slot) = vbase.get_mut(at) {
                     *slot = i * oc * taps_o + ((fz + a * sd) * kh + fy + b * sh) * kw;
                 }
                 v += 1;
