@@ -512,11 +512,13 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         if (0..len).any(|j| dst[j * stride] != pack(ra[j] as i16 + oa, rb[j] as i16 + ob)) {
             bad += 1;
         }
-        // pack_strided: a column of two planes, any count (blocks of four and the rest).
-        let count = (rng.next() % 20) as usize;
-        let (sstride, dstride) = (1 + (rng.next() % 9) as usize, 1 + (rng.next() % 7) as usize);
+        // pack_strided: a column of two planes, any count (passes of eight, blocks of four and
+        // the rest), the two columns' offsets different or equal.
+        let count = (rng.next() % 24) as usize;
+        let (sstride, dstride) = (1 + (rng.next() % 8) as usize, 1 + (rng.next() % 7) as usize);
         let mut dst = [0u32; 512];
         let (pa, pb) = (&bytes[..200], &bytes[250..450]);
+        let (oa, ob) = if case % 3 == 0 { (128, -3) } else { (oa, ob) };
         epssn::dsp::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
         runs += 1;
         let column = (0..count).all(|j| {
