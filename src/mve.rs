@@ -198,6 +198,34 @@ pub fn pack_strided_quads(
     }
 }
 
+/// The eight-column pass of the Helium line fills ([`pack_line_quads`],
+/// [`fill_channel_pairs`]), one body for both: eight bytes of the rows at `r1` and `r3` widened
+/// to 16-bit lanes, the offsets `$oa` and `$ob` (registers, or a vector) added, `VSRI`/`VSLI`
+/// pair the two rows' odd and even columns into words (word lane i of q0 holds columns 2i,
+/// 2i + 1 of the first row, of q1 those of the second), two scatter stores at `{dp}` with the
+/// word offsets in q2 (even columns) and q3 (odd), `{dp}` on by `{sb}` bytes. Clobbers q0, q1
+/// and q4.
+macro_rules! eight_columns {
+    ($oa:literal, $ob:literal) => {
+        concat!(
+            "vldrb.s16    q0, [r1], #8\n",
+            "vldrb.s16    q1, [r3], #8\n",
+            "vadd.i16     q0, q0, ",
+            $oa,
+            "\n",
+            "vadd.i16     q1, q1, ",
+            $ob,
+            "\n",
+            "vmov         q4, q1\n",
+            "vsri.32      q1, q0, #16\n",
+            "vsli.32      q0, q4, #16\n",
+            "vstrw.32     q0, [{dp}, q2, uxtw #2]\n",
+            "vstrw.32     q1, [{dp}, q3, uxtw #2]\n",
+            "add   {dp}, {dp}, {sb}"
+        )
+    };
+}
+
 /// A whole line fill with Helium (the line engine's, `kernels::line`): for each pair `k` of
 /// `rows` (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw]
 /// = pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what
@@ -269,17 +297,7 @@ pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'
                 "mov   {dp}, {dk}",
                 "dlstp.16     lr, {need}",
                 "3:",
-                "vldrb.s16    q0, [r1], #8",
-                "vldrb.s16    q1, [r3], #8",
-                "vadd.i16     q0, q0, r2",
-                "vadd.i16     q1, q1, r4",
-                // Word lane i of q0 holds columns 2i, 2i + 1 of row a, of q1 those of row b.
-                "vmov         q4, q1",
-                "vsri.32      q1, q0, #16",
-                "vsli.32      q0, q4, #16",
-                "vstrw.32     q0, [{dp}, q2, uxtw #2]",
-                "vstrw.32     q1, [{dp}, q3, uxtw #2]",
-                "add   {dp}, {dp}, {sb}",
+                eight_columns!("r2", "r4"),
                 "letp  lr, 3b",
                 "add   {dk}, {dk}, #4",
                 "subs  r0, r0, #1",
@@ -421,18 +439,7 @@ pub fn fill_channel_pairs(
                     "mov   {dp}, {dk}",
                     "dlstp.16     lr, {need}",
                     "3:",
-                    "vldrb.s16    q0, [r1], #8",
-                    "vldrb.s16    q1, [r3], #8",
-                    "vadd.i16     q0, q0, q5",
-                    "vadd.i16     q1, q1, q5",
-                    // Word lane i of q0 holds columns 2i, 2i + 1 of the first row, of q1
-                    // those of the second.
-                    "vmov         q4, q1",
-                    "vsri.32      q1, q0, #16",
-                    "vsli.32      q0, q4, #16",
-                    "vstrw.32     q0, [{dp}, q2, uxtw #2]",
-                    "vstrw.32     q1, [{dp}, q3, uxtw #2]",
-                    "add   {dp}, {dp}, {sb}",
+                    eight_columns!("q5", "q5"),
                     "letp  lr, 3b",
                     "add   r1, r1, {adv}",
                     "add   {dk}, {dk}, #4",

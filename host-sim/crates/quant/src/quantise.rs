@@ -97,30 +97,25 @@ pub struct QuantiseArgs {
 /// The activation ranges (scale × top code) `quantisation.json` of `dir` records, for exactly
 /// the tensors `calibrated` has: a missing or extra one means another network.
 fn recorded_ranges(dir: &Path, calibrated: &ActivationRanges) -> Result<ActivationRanges> {
-    let path = dir.join("quantisation.json");
-    let v: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&path).with_context(|| format!("--ranges-from: {}", path.display()))?,
-    )
-    .with_context(|| format!("parsing {}", path.display()))?;
-    let scales = v["quantisation"]["activation_scales"]
-        .as_object()
-        .with_context(|| format!("{} has no quantisation.activation_scales", path.display()))?;
+    let scales = epssn_reference::weights::activation_scales(dir).context("--ranges-from")?;
     let mut ranges = ActivationRanges::new();
     for name in calibrated.keys() {
-        let s = scales
-            .get(name)
-            .and_then(|s| s.as_f64())
-            .with_context(|| format!("{} has no scale for {name}", path.display()))?;
+        let s = scales.get(name).with_context(|| {
+            format!(
+                "{}/quantisation.json has no scale for {name}",
+                dir.display()
+            )
+        })?;
         ranges.insert(name.clone(), s * top_code(name));
     }
     let extra: Vec<&String> = scales
         .keys()
-        .filter(|n| n.as_str() != "input" && !calibrated.contains_key(*n))
+        .filter(|n| !calibrated.contains_key(*n))
         .collect();
     ensure!(
         extra.is_empty(),
-        "{} has scales for {extra:?}, which this network does not have",
-        path.display()
+        "{}/quantisation.json has scales for {extra:?}, which this network does not have",
+        dir.display()
     );
     Ok(ranges)
 }
@@ -323,4 +318,44 @@ pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
         dir.display()
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A folder of this test process holding `quantisation.json` with these scales.
+    fn folder(name: &str, scales: &[(&str, f64)]) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("epssn-ranges-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let table: serde_json::Map<String, serde_json::Value> = scales
+            .iter()
+            .map(|&(n, s)| (n.to_string(), s.into()))
+            .collect();
+        let json = serde_json::json!({ "quantisation": { "activation_scales": table } });
+        std::fs::write(dir.join("quantisation.json"), json.to_string()).unwrap();
+        dir
+    }
+
+    #[test]
+    fn recorded_ranges_are_scale_times_top_code_for_exactly_the_networks_tensors() {
+        let calibrated: ActivationRanges =
+            [("cost".to_string(), 1.0), ("f0".to_string(), 1.0)].into();
+        let dir = folder(
+            "ok",
+            &[("input", 1.0 / 255.0), ("cost", 0.02), ("f0", 0.05)],
+        );
+        let r = recorded_ranges(&dir, &calibrated).unwrap();
+        assert!((r["cost"] - 0.02 * 255.0).abs() < 1e-12);
+        assert!((r["f0"] - 0.05 * 127.0).abs() < 1e-12);
+        let missing = folder("missing", &[("cost", 0.02)]);
+        assert!(recorded_ranges(&missing, &calibrated).is_err());
+        let extra = folder("extra", &[("cost", 0.02), ("f0", 0.05), ("g9", 0.1)]);
+        assert!(recorded_ranges(&extra, &calibrated).is_err());
+        let bad = folder("bad", &[("cost", 0.0), ("f0", 0.05)]);
+        assert!(recorded_ranges(&bad, &calibrated).is_err());
+        for d in [dir, missing, extra, bad] {
+            std::fs::remove_dir_all(d).unwrap();
+        }
+    }
 }

@@ -120,6 +120,36 @@ pub fn int8_views(dir: &Path) -> Result<usize> {
     Ok(views)
 }
 
+/// The activation scales a quantised folder records (`quantisation.activation_scales` of its
+/// `quantisation.json`), by tensor name, the input's excepted (always 1/255): what `train
+/// --fake-quant` rounds to and `quantise --ranges-from` takes.
+pub fn activation_scales(dir: &Path) -> Result<std::collections::BTreeMap<String, f64>> {
+    let path = dir.join("quantisation.json");
+    let text = std::fs::read(&path).with_context(|| format!("{}", path.display()))?;
+    let v: serde_json::Value =
+        serde_json::from_slice(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let table = v["quantisation"]["activation_scales"]
+        .as_object()
+        .with_context(|| format!("{} has no quantisation.activation_scales", path.display()))?;
+    let mut scales = std::collections::BTreeMap::new();
+    for (name, s) in table.iter().filter(|(n, _)| n.as_str() != "input") {
+        let s = s
+            .as_f64()
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .with_context(|| {
+                format!(
+                    "{}: the scale of {name} is not a positive number",
+                    path.display()
+                )
+            })?;
+        scales.insert(name.clone(), s);
+    }
+    if scales.is_empty() {
+        bail!("{} lists no activation scales", path.display());
+    }
+    Ok(scales)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -132,32 +132,6 @@ struct TrainState {
     fake_quant: BTreeMap<String, f64>,
 }
 
-/// The activation scales of a quantised weights folder (`quantisation.json`), the input's
-/// excepted (the network divides by 255 itself).
-fn activation_scales(dir: &Path) -> Result<BTreeMap<String, f64>> {
-    let path = dir.join("quantisation.json");
-    let v: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&path).with_context(|| format!("--fake-quant: {}", path.display()))?,
-    )
-    .with_context(|| format!("parsing {}", path.display()))?;
-    let table = v["quantisation"]["activation_scales"]
-        .as_object()
-        .with_context(|| format!("{} has no quantisation.activation_scales", path.display()))?;
-    let mut scales = BTreeMap::new();
-    for (name, s) in table.iter().filter(|(n, _)| n.as_str() != "input") {
-        let s = s
-            .as_f64()
-            .with_context(|| format!("{}: the scale of {name} is not a number", path.display()))?;
-        scales.insert(name.clone(), s);
-    }
-    ensure!(
-        !scales.is_empty(),
-        "{} lists no activation scales",
-        path.display()
-    );
-    Ok(scales)
-}
-
 /// The int8 grids of `scales`: codes 0..=255 for the unsigned cost volume, −128..=127 for
 /// every other tensor (docs/QUANTISATION.md "Numbers").
 fn grids(scales: &BTreeMap<String, f64>) -> BTreeMap<String, Grid> {
@@ -374,7 +348,9 @@ impl Plan {
             steps_per_epoch,
             lr,
             fake_quant: match &args.fake_quant {
-                Some(dir) => activation_scales(dir)?,
+                Some(dir) => {
+                    epssn_reference::weights::activation_scales(dir).context("--fake-quant")?
+                }
                 None => BTreeMap::new(),
             },
         })
