@@ -299,6 +299,7 @@ fn obj_corner(word: &str, read: usize) -> Option<(i64, i64)> {
 /// `face` element's `vertex_indices` (or `vertex_index`) lists, polygons fanned.
 fn parse_ply(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
     use ply_rs_bw::ply::{DefaultElement, Property};
+    ply_counts_fit(bytes)?;
     let parser = ply_rs_bw::parser::Parser::<DefaultElement>::new();
     let ply = parser
         .read_ply(&mut Cursor::new(bytes))
@@ -343,6 +344,39 @@ fn parse_ply(bytes: &[u8]) -> Result<Vec<Triangle>, MeshError> {
         }
     }
     Ok(out)
+}
+
+/// Refuses a PLY header whose element counts exceed the bytes after it: every entry takes at
+/// least one byte in any format, and the reader would otherwise build that many entries first
+/// (an element without properties reads none, so a count of 10^12 would fill memory with
+/// empty entries). A header without `end_header` is left for the reader to refuse.
+fn ply_counts_fit(bytes: &[u8]) -> Result<(), MeshError> {
+    const END: &[u8] = b"end_header";
+    let Some(at) = bytes.windows(END.len()).position(|w| w == END) else {
+        return Ok(());
+    };
+    let body_start = bytes[at..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map_or(bytes.len(), |n| at + n + 1);
+    let body = (bytes.len() - body_start) as u64;
+    for line in String::from_utf8_lossy(&bytes[..at]).lines() {
+        let mut words = line.split_whitespace();
+        if words.next() != Some("element") {
+            continue;
+        }
+        let (Some(name), Some(Ok(count))) = (words.next(), words.next().map(str::parse::<u64>))
+        else {
+            continue;
+        };
+        if count > body {
+            return Err(broken(
+                "PLY",
+                format!("element {name} declares {count} entries; the {body} bytes after the header cannot hold them"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// A PLY integer list property as i64 indices (None for floats and scalars).
@@ -476,6 +510,22 @@ mod tests {
                 [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.1, 1.0 / 3.0, 1e-7]],
             ],
         }
+    }
+
+    #[test]
+    fn a_ply_count_past_the_file_is_refused_before_reading() {
+        // Found by the mesh_ply fuzz target: an element without properties and a count of
+        // 10^12 made the reader build that many empty entries (out of memory).
+        let fuzzed = b"ply\nformat binary_little_endian 1.0\nelement veccccccccex 1111111111111\nend_header\nrope\0x\0\0";
+        let e = parse_mesh(fuzzed, MeshFormat::Ply).unwrap_err().to_string();
+        assert!(e.contains("1111111111111 entries"), "{e}");
+        // The same for a vertex count a binary body cannot hold.
+        let mut short = to_bytes(&square(), MeshFormat::Ply);
+        let text = String::from_utf8_lossy(&short).into_owned();
+        let at = text.find("element vertex ").unwrap();
+        let end = at + text[at..].find('\n').unwrap();
+        short.splice(at..end, b"element vertex 99999999".iter().copied());
+        assert!(parse_mesh(&short, MeshFormat::Ply).is_err());
     }
 
     #[test]
