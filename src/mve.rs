@@ -1232,3 +1232,320 @@ pub fn exp_sums(logits: &[i8], m: i8, exp: &[u16; 256]) -> Option<(u32, u32)> {
     }
     Some((s, t))
 }
+
+/// The int8 line fill of the forward line engine with Helium (`kernels::line::conv_s8`):
+/// for each tap `t < at.len()` and channel `i < channels`, `dst[t·channels + i + j·vp] =
+/// row[j]` for `j < len`, where `row` is `input[at[t] + i·cs ..]`, or `pad` (the input's
+/// zero point, `len` bytes of it) where `at[t]` is `usize::MAX` (a tap outside the input).
+/// The line holds the raw int8 inputs, entry `v = (tap, channel)` of column `j` at byte
+/// `j·vp + v`; the offset is folded into the biases, so a padding entry holds the zero point
+/// and adds nothing. Eight columns per pass: byte loads widened to 16-bit lanes and a
+/// scatter store with 16-bit byte offsets; for an even channel count two channels of one tap
+/// at once (`VSLI` pairs their bytes into halfwords: 6 instructions per 16 entries), else
+/// one (4 per 8). Tail-predicated (`DLSTP.16`), so any `len` from 1 to 256. Returns false,
+/// writing nothing, when a row or `dst` is too short, or for a shape outside those bounds.
+pub fn fill_bytes(
+    dst: &mut [u8],
+    vp: usize,
+    len: usize,
+    (input, at): (&[i8], &[usize]),
+    (channels, cs): (usize, usize),
+    pad: &[i8],
+) -> bool {
+    let last_row = channels.checked_sub(1).and_then(|c| c.checked_mul(cs));
+    let rows_fit = at.iter().all(|&a| {
+        a == usize::MAX
+            || last_row
+                .and_then(|r| r.checked_add(a))
+                .and_then(|r| r.checked_add(len))
+                .is_some_and(|e| e <= input.len())
+    });
+    let entries = at.len().checked_mul(channels);
+    let dst_fits = len
+        .checked_sub(1)
+        .and_then(|j| j.checked_mul(vp))
+        .zip(entries)
+        .and_then(|(e, n)| e.checked_add(n.checked_sub(1)?))
+        .is_some_and(|last| last < dst.len());
+    if channels == 0
+        || len == 0
+        || len > 256
+        || pad.len() < len
+        || entries.is_none_or(|n| n > vp)
+        || vp > 4096
+        || !rows_fit
+        || !dst_fits
+        || cs > i32::MAX as usize / 2
+    {
+        return false;
+    }
+    let passes = 8 * len.div_ceil(8) as i32;
+    let pairs = channels / 2;
+    for (t, &a) in at.iter().enumerate() {
+        let (row, step) = if a == usize::MAX {
+            (pad.as_ptr(), 0)
+        } else {
+            (input.as_ptr().wrapping_add(a), cs)
+        };
+        let dk = dst.as_mut_ptr().wrapping_add(t * channels);
+        if channels.is_multiple_of(2) {
+            // SAFETY (checked above): pair k of tap t reads len bytes from row + 2k·step and
+            // row + (2k + 1)·step (within input, or the pad row with step 0), and writes
+            // the halfwords dst[t·channels + 2k + j·vp ..][..2] for j < len, within dst
+            // (t·channels + 2k + 1 < at.len()·channels ≤ vp). The halfword stores are
+            // aligned: dst is the word-aligned line at an even offset (vp is even, as is
+            // the channel count here). `DLSTP.16` with len elements stops the loads at len
+            // bytes and the stores at len columns, after ceil(len / 8) passes, after which
+            // the first row's pointer moves on to the next pair's.
+            #[allow(unsafe_code)]
+            unsafe {
+                core::arch::asm!(
+                    // Scatter offsets in bytes: [0, 1, …, 7] · vp.
+                    "vidup.u16    q2, r2, #1",
+                    "vmul.i16     q2, q2, {vp}",
+                    "2:",
+                    "add   r3, r1, {cs}",
+                    "mov   {dp}, {dk}",
+                    "dlstp.16     lr, {len}",
+                    "3:",
+                    "vldrb.u16    q0, [r1], #8",
+                    "vldrb.u16    q1, [r3], #8",
+                    "vsli.16      q0, q1, #8",
+                    "vstrh.16     q0, [{dp}, q2]",
+                    "add   {dp}, {dp}, {sb}",
+                    "letp  lr, 3b",
+                    "add   r1, r1, {adv}",
+                    "add   {dk}, {dk}, #2",
+                    "subs  r0, r0, #1",
+                    "bne   2b",
+                    inout("r0") pairs => _,
+                    // The widening byte loads take only low registers as their base; `VIDUP`
+                    // takes its start in an even register.
+                    inout("r1") row => _,
+                    inout("r2") 0u32 => _,
+                    out("r3") _,
+                    dk = inout(reg) dk => _,
+                    dp = out(reg) _,
+                    vp = in(reg) vp,
+                    sb = in(reg) 8 * vp,
+                    len = in(reg) len,
+                    cs = in(reg) step,
+                    adv = in(reg) (2 * step as i32).wrapping_sub(passes),
+                    out("lr") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _,
+                    options(nostack),
+                );
+            }
+        } else {
+            // SAFETY (checked above): channel i of tap t reads len bytes from row + i·step
+            // (within input, or the pad row with step 0) and writes the bytes
+            // dst[t·channels + i + j·vp] for j < len, within dst; `DLSTP.16` as above, after
+            // which the row pointer moves on to the next channel's.
+            #[allow(unsafe_code)]
+            unsafe {
+                core::arch::asm!(
+                    "vidup.u16    q2, r2, #1",
+                    "vmul.i16     q2, q2, {vp}",
+                    "2:",
+                    "mov   {dp}, {dk}",
+                    "dlstp.16     lr, {len}",
+                    "3:",
+                    "vldrb.u16    q0, [r1], #8",
+                    "vstrb.16     q0, [{dp}, q2]",
+                    "add   {dp}, {dp}, {sb}",
+                    "letp  lr, 3b",
+                    "add   r1, r1, {adv}",
+                    "add   {dk}, {dk}, #1",
+                    "subs  r0, r0, #1",
+                    "bne   2b",
+                    inout("r0") channels => _,
+                    inout("r1") row => _,
+                    inout("r2") 0u32 => _,
+                    dk = inout(reg) dk => _,
+                    dp = out(reg) _,
+                    vp = in(reg) vp,
+                    sb = in(reg) 8 * vp,
+                    len = in(reg) len,
+                    adv = in(reg) (step as i32).wrapping_sub(passes),
+                    out("lr") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                    out("d4") _, out("d5") _,
+                    options(nostack),
+                );
+            }
+        }
+    }
+    true
+}
+
+/// The int8 twin of [`PairRows`] (`kernels::line::conv_s8`): pairs of positions `step`
+/// bytes apart, each a dot product of `n` int8 line bytes with two channels' int8 weights,
+/// `VMLADAVA.S8` adding 16 products at a time: 64 MACs in 9 instructions, the last
+/// `n mod 16` bytes by tail predication. A channel pair's weights are 16-byte blocks, the
+/// first channel's block then the second's (`32 · ceil(n / 16)` bytes, zero past `n`). The
+/// accumulators of one channel are one word apart; the loop around the pairs is
+/// [`PairRows::run_channels`]'s, its state in registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PairRowsS8 {
+    step: usize,
+    n: usize,
+    pairs: usize,
+    x_len: usize,
+    w_len: usize,
+}
+
+impl PairRowsS8 {
+    /// The shape of `pairs ≥ 1` pairs of positions, `n ≥ 1` bytes each; `None` for any
+    /// other shape or one whose extent overflows.
+    pub fn new(step: usize, n: usize, pairs: usize) -> Option<Self> {
+        if pairs == 0 || n == 0 || pairs > usize::MAX / 4 || step > i32::MAX as usize / 4 {
+            return None;
+        }
+        let blocks = n.div_ceil(16);
+        Some(PairRowsS8 {
+            step,
+            n,
+            pairs,
+            x_len: (2 * pairs - 1).checked_mul(step)?.checked_add(n)?,
+            w_len: blocks.checked_mul(32)?,
+        })
+    }
+
+    /// Weight bytes of one channel pair.
+    pub fn pair_bytes(&self) -> usize {
+        self.w_len
+    }
+
+    /// For every channel pair `k < bias.len()`: positions `q = 2p`, `q + 1` (`p < pairs`)
+    /// get `acc[2k·rstride + first + q] = bias[k][0] + x_q·w_{2k}` and the same in row
+    /// `2k + 1` with `bias[k][1]` and `w_{2k+1}`, where `x_q = x[q·step ..][..n]` and the
+    /// pair's weights start at `w[k·wstride]`. Returns false, doing nothing, for a slice too
+    /// short for every pair.
+    pub fn run_channels(
+        &self,
+        x: &[u8],
+        (w, wstride): (&[u8], usize),
+        bias: &[[i32; 2]],
+        acc: &mut [i32],
+        (rstride, first): (usize, usize),
+    ) -> bool {
+        let Some(last) = bias.len().checked_sub(1) else {
+            return true;
+        };
+        let fits = x.len() >= self.x_len
+            && wstride <= i32::MAX as usize
+            && rstride <= usize::MAX / 8
+            && last
+                .checked_mul(wstride)
+                .and_then(|a| a.checked_add(self.w_len))
+                .is_some_and(|e| e <= w.len())
+            && (2 * last + 1)
+                .checked_mul(rstride)
+                .and_then(|a| a.checked_add(first))
+                .and_then(|a| a.checked_add(2 * self.pairs))
+                .is_some_and(|e| e <= acc.len());
+        if !fits {
+            return false;
+        }
+        let [b0, b1] = bias[0];
+        let a0 = acc.as_mut_ptr().wrapping_add(first);
+        let blocks = self.w_len / 32;
+        // The loop's state (words), as PairRows::pairs_in_registers keeps it: biases, the
+        // bytes of a dot product, weight bytes per pair, the advance from a pair's end to the
+        // next pair's start, channel pairs left, the x pointers' start, the weight step, the
+        // first row's start, the row step, the next pair's biases, position pairs.
+        let mut st = [
+            b0 as u32,
+            b1 as u32,
+            self.n as u32,
+            self.w_len as u32,
+            (2 * self.step).wrapping_sub(16 * blocks) as u32,
+            bias.len() as u32,
+            x.as_ptr() as u32,
+            x.as_ptr().wrapping_add(self.step) as u32,
+            wstride as u32,
+            a0 as u32,
+            (rstride * 4) as u32,
+            bias.as_ptr().wrapping_add(1) as u32,
+            self.pairs as u32,
+        ];
+        // SAFETY: pair p of channel pair k reads x[2p·step ..][..n] and x[(2p + 1)·step ..]
+        // [..n] (the tail predication of `DLSTP.8` with n elements stops the loads at n
+        // bytes; within x_len ≤ x.len()), the weights w[k·wstride ..][..32·blocks] (within w,
+        // checked above) and stores acc[(2k)·rstride + first + 2p ..][..2] and the same in
+        // row 2k + 1 (within acc, checked above). After a pair the x pointers have moved
+        // 16·blocks bytes and the weight pointer 32·blocks, undone by the state's advance
+        // and step back; a next channel pair starts again from the saved x pointers, its
+        // weights wstride bytes on, its rows 2·rstride words on and its biases from the next
+        // entry of `bias` (the count in `st` stops the loop after bias.len() pairs). `st` is
+        // a live local array of 13 words.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr   lr, [{st}, #8]",
+                "dlstp.8      lr, lr",
+                "3:",
+                "vldrb.u8     q0, [{x0}], #16",
+                "vldrb.u8     q1, [{x1}], #16",
+                "vldrb.u8     q2, [{w}], #16",
+                "vldrb.u8     q3, [{w}], #16",
+                "vmladava.s8  r0, q0, q2",
+                "vmladava.s8  r2, q1, q2",
+                "vmladava.s8  r4, q0, q3",
+                "vmladava.s8  r8, q1, q3",
+                "letp  lr, 3b",
+                "strd  r0, r2, [{a0}], #8",
+                "strd  r4, r8, [{a1}], #8",
+                // Weights back to the pair's start, inputs on to the next pair's.
+                "ldrd  r0, r2, [{st}, #12]",
+                "sub   {w}, {w}, r0",
+                "add   {x0}, {x0}, r2",
+                "add   {x1}, {x1}, r2",
+                "ldrd  r0, r4, [{st}]",
+                "mov   r2, r0",
+                "mov   r8, r4",
+                "subs  {pairs}, {pairs}, #1",
+                "bne   2b",
+                // The next channel pair: its weights, rows and biases; the row again.
+                "ldr   r0, [{st}, #20]",
+                "subs  r0, r0, #1",
+                "beq   4f",
+                "str   r0, [{st}, #20]",
+                "ldrd  {x0}, {x1}, [{st}, #24]",
+                "ldr   r0, [{st}, #32]",
+                "add   {w}, {w}, r0",
+                "ldrd  {a0}, r0, [{st}, #36]",
+                "add   {a0}, {a0}, r0, lsl #1",
+                "str   {a0}, [{st}, #36]",
+                "add   {a1}, {a0}, r0",
+                "ldr   r2, [{st}, #44]",
+                "ldrd  r0, r4, [r2], #8",
+                "str   r2, [{st}, #44]",
+                "strd  r0, r4, [{st}]",
+                "mov   r2, r0",
+                "mov   r8, r4",
+                "ldr   {pairs}, [{st}, #48]",
+                "b     2b",
+                "4:",
+                st = in(reg) st.as_mut_ptr(),
+                x0 = inout(reg) x.as_ptr() => _,
+                x1 = inout(reg) x.as_ptr().add(self.step) => _,
+                w = inout(reg) w.as_ptr() => _,
+                a0 = inout(reg) a0 => _,
+                a1 = inout(reg) a0.add(rstride) => _,
+                pairs = inout(reg) self.pairs => _,
+                inout("r0") b0 => _,
+                inout("r2") b0 => _,
+                inout("r4") b1 => _,
+                inout("r8") b1 => _,
+                out("lr") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                options(nostack),
+            );
+        }
+        true
+    }
+}

@@ -345,7 +345,7 @@ fn main() -> ! {
     }
     let (runs, bad) = inner_loops(&mut rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps, fill_channel_pairs with mve): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps; fill_channel_pairs, fill_bytes, PairRowsS8 with mve): {} random cases, {} mismatches",
         runs,
         bad
     );
@@ -646,8 +646,10 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         bad += u32::from(!channel_taps_agree(rng, &bytes));
         #[cfg(feature = "mve")]
         {
-            runs += 1;
+            runs += 3;
             bad += u32::from(!channel_pairs_agree(rng, &bytes));
+            bad += u32::from(!fill_bytes_agree(rng, &bytes));
+            bad += u32::from(!pair_rows_s8_agree(rng, &bytes));
         }
         // exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
         let mut exp = [0u16; 256];
@@ -742,7 +744,8 @@ fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     let need = 4 * (1 + (rng.next() % 12) as usize);
     let taps = 1 + (rng.next() % 9) as usize;
     let channels = 2 * (1 + (rng.next() % 4) as usize);
-    let cs = need + (rng.next() % 20) as usize;
+    // Every channel's row within the 512 bytes.
+    let cs = (need + (rng.next() % 20) as usize).min((512 - need) / (channels - 1));
     let span = (channels - 1) * cs + need;
     let off = if rng.next().is_multiple_of(2) {
         128
@@ -812,6 +815,180 @@ fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
         return false;
     }
     got == want
+}
+
+/// `mve::fill_bytes` (the int8 line: each tap's channels' rows, raw, the pad row for taps
+/// outside the input) against a plain loop; bytes it must not write keep their value; a row
+/// past the input, a column of too few entries or a destination one byte short is refused.
+#[cfg(feature = "mve")]
+fn fill_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::mve::fill_bytes;
+    let len = 1 + (rng.next() % 40) as usize;
+    let taps = 1 + (rng.next() % 9) as usize;
+    let channels = 1 + (rng.next() % 8) as usize;
+    let cs = len + (rng.next() % 20) as usize;
+    let span = (channels - 1) * cs + len;
+    let pad = [rng.next() as i8; 64];
+    let mut at = [usize::MAX; 9];
+    for a in at[..taps].iter_mut() {
+        if !rng.next().is_multiple_of(4) {
+            *a = (rng.next() as usize) % (512 - span + 1);
+        }
+    }
+    let entries = taps * channels;
+    // An even column for an even channel count (the halfword stores' alignment).
+    let vp = entries + 2 * (rng.next() % 3) as usize;
+    let fill = rng.next() as u8;
+    // Word-aligned, as the line is (the halfword stores need their alignment).
+    let (mut got, mut want) = (Aligned([fill; 80 * 40]), [fill; 80 * 40]);
+    let got = &mut got.0;
+    let n = (len - 1) * vp + entries;
+    if !fill_bytes(
+        &mut got[..n],
+        vp,
+        len,
+        (bytes, &at[..taps]),
+        (channels, cs),
+        &pad,
+    ) {
+        return false;
+    }
+    for (t, &a) in at[..taps].iter().enumerate() {
+        for i in 0..channels {
+            for j in 0..len {
+                let x = if a == usize::MAX {
+                    pad[j]
+                } else {
+                    bytes[a + i * cs + j]
+                };
+                want[t * channels + i + j * vp] = x as u8;
+            }
+        }
+    }
+    let mut past = at;
+    past[0] = 512 - span + 1;
+    let mut spare = Aligned([0u8; 80 * 40]);
+    let spare = &mut spare.0;
+    if fill_bytes(
+        &mut spare[..n],
+        vp,
+        len,
+        (bytes, &past[..taps]),
+        (channels, cs),
+        &pad,
+    ) || fill_bytes(
+        &mut spare[..n],
+        entries - 1,
+        len,
+        (bytes, &at[..taps]),
+        (channels, cs),
+        &pad,
+    ) || fill_bytes(
+        &mut spare[..n - 1],
+        vp,
+        len,
+        (bytes, &at[..taps]),
+        (channels, cs),
+        &pad,
+    ) {
+        return false;
+    }
+    *got == want
+}
+
+/// `mve::PairRowsS8::run_channels` (int8 dot products, 16 per instruction, the tail by
+/// predication) against a plain loop: random lengths 1 to 80 bytes, 1 to 6 pairs of
+/// positions, 1 to 4 channel pairs, the rows' spare words untouched; slices one short
+/// refused.
+#[cfg(feature = "mve")]
+fn pair_rows_s8_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::mve::PairRowsS8;
+    let n = 1 + (rng.next() % 80) as usize;
+    let pairs = 1 + (rng.next() % 6) as usize;
+    let step = 1 + (rng.next() % 24) as usize;
+    let chans = 1 + (rng.next() % 4) as usize;
+    let Some(plan) = PairRowsS8::new(step, n, pairs) else {
+        return false;
+    };
+    let x_len = (2 * pairs - 1) * step + n;
+    let x: &[u8] = &bytemuck_bytes(bytes)[..x_len];
+    let wpair = plan.pair_bytes();
+    let wstride = wpair + 4 * (rng.next() % 3) as usize;
+    let mut w = [0u8; 4 * 112 * 2];
+    for (k, b) in w.iter_mut().enumerate() {
+        // Zero past the window in each block, as the engine lays it out.
+        let (pair_at, block_at) = (k % wstride, k % wstride % 32);
+        let e = (pair_at / 32) * 16 + block_at % 16;
+        *b = if pair_at < wpair && e < n {
+            rng.next() as u8
+        } else {
+            0
+        };
+    }
+    let mut bias = [[0i32; 2]; 4];
+    for b in bias[..chans].iter_mut() {
+        *b = [rng.next() as i32 >> 8, rng.next() as i32 >> 8];
+    }
+    let rstride = 2 * pairs + (rng.next() % 3) as usize;
+    let fill = rng.next() as i32;
+    let acc_len = (2 * chans - 1) * rstride + 2 * pairs;
+    let (mut got, mut want) = ([fill; 8 * 16], [fill; 8 * 16]);
+    let w_len = (chans - 1) * wstride + wpair;
+    if !plan.run_channels(
+        x,
+        (&w[..w_len], wstride),
+        &bias[..chans],
+        &mut got[..acc_len],
+        (rstride, 0),
+    ) {
+        return false;
+    }
+    for k in 0..chans {
+        for c in 0..2 {
+            for q in 0..2 * pairs {
+                let mut a = bias[k][c];
+                for e in 0..n {
+                    let wb = w[k * wstride + (e / 16) * 32 + c * 16 + e % 16] as i8;
+                    a = a.wrapping_add(wb as i32 * x[q * step + e] as i8 as i32);
+                }
+                want[(2 * k + c) * rstride + q] = a;
+            }
+        }
+    }
+    let mut spare = [0i32; 8 * 16];
+    if plan.run_channels(
+        &x[..x_len - 1],
+        (&w[..w_len], wstride),
+        &bias[..chans],
+        &mut spare[..acc_len],
+        (rstride, 0),
+    ) || plan.run_channels(
+        x,
+        (&w[..w_len - 1], wstride),
+        &bias[..chans],
+        &mut spare[..acc_len],
+        (rstride, 0),
+    ) || plan.run_channels(
+        x,
+        (&w[..w_len], wstride),
+        &bias[..chans],
+        &mut spare[..acc_len - 1],
+        (rstride, 0),
+    ) {
+        return false;
+    }
+    got == want
+}
+
+/// A word-aligned byte array.
+#[cfg(feature = "mve")]
+#[repr(align(4))]
+struct Aligned([u8; 80 * 40]);
+
+/// The bytes of an int8 array, as the int8 line engine reads them.
+#[cfg(feature = "mve")]
+fn bytemuck_bytes(b: &[i8; 512]) -> [u8; 512] {
+    b.map(|x| x as u8)
 }
 
 /// `dsp::ChannelTaps` (a whole line's rows, channel by channel and tap by tap, then zero
