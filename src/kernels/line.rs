@@ -16,6 +16,10 @@
 //! and 4 `SMLAD` give 8 MACs. `v` is padded with zeros (and zero weights) to a multiple of
 //! 4 so every window is an even number of words.
 //!
+//! With Helium (`mve`) the forward engine's line holds int8 instead (`conv_s8`): the raw
+//! inputs, the zero point at padding, the offset's products folded into the biases, so that
+//! `VMLADAV.S8` takes 16 MACs per instruction; the accumulators are the i16 line's exactly.
+//!
 //! Cost on the QEMU Cortex-M7 (EPSSN-S, whole layers including the fill and the
 //! requantisation): f1 2.0, d1 2.2, u0 4.4 instructions per MAC; the inner loop alone is
 //! about 1.1.
