@@ -1,6 +1,6 @@
 //! The no-return decision's threshold against accuracy: for each threshold τ on a ray's
 //! end-bin mass (the spec's `output.no_return_mass`), the all-pixel MAE, the return mask's
-//! precision and recall and the chamfer distance between the prediction's own points and the
+//! precision and recall (each map's averaged, and pooled over every ray) and the chamfer distance between the prediction's own points and the
 //! ground truth's, from the float reference network on held-out samples.
 //!
 //! ```sh
@@ -17,7 +17,9 @@ use epssn_eval::data::{load_dir, split_dir};
 use epssn_reference::floatref;
 use epssn_sim::metrics;
 
-const THRESHOLDS: [f64; 10] = [0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8];
+const THRESHOLDS: [f64; 13] = [
+    0.0, 0.05, 0.1, 0.15, 0.2, 0.225, 0.25, 0.275, 0.3, 0.4, 0.5, 0.6, 0.8,
+];
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -50,18 +52,24 @@ fn main() -> Result<()> {
         }
     }
     println!("{} maps of {}", set.len(), dir.display());
-    println!("| τ | MAE mm | precision % | recall % | CD (own points) | CD (GT-masked) |");
-    println!("| --- | --- | --- | --- | --- | --- |");
+    println!(
+        "| τ | MAE mm | precision % | recall % | pooled precision % | pooled recall % | CD (own points) | CD (GT-masked) |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
     for (tau, m) in THRESHOLDS.iter().zip(&scores) {
         let mean = |f: &dyn Fn(&metrics::Metrics) -> f64| {
             let v: Vec<f64> = m.iter().map(f).filter(|x| x.is_finite()).collect();
             metrics::mean_std(&v).0.unwrap_or(f64::NAN)
         };
+        let acc = metrics::Accuracy::of(m);
+        let pct = |v: Option<f64>| 100.0 * v.unwrap_or(f64::NAN);
         println!(
-            "| {tau} | {:.2} | {:.1} | {:.1} | {:.3} | {:.3} |",
+            "| {tau} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {:.3} | {:.3} |",
             mean(&|x| x.mae),
             100.0 * mean(&|x| x.mask_precision),
             100.0 * mean(&|x| x.mask_recall),
+            pct(acc.mask_precision_pooled),
+            pct(acc.mask_recall_pooled),
             mean(&|x| x.cd),
             mean(&|x| x.cd_gt_masked),
         );

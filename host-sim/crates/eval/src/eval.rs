@@ -42,7 +42,7 @@ pub struct EvalArgs {
 }
 
 /// The metric's exact definition, as `eval --json` states it.
-pub const METRIC: &str = "mae: 1000/(E*A) * sum over all E*A pixels of |pred - clamp(label, r_min, r_max)| (the paper's formula, mm); mae_masked: the same mean over the ground-truth mask; cd: 500 * symmetric chamfer (m^2) between the prediction's own points (rays whose depth reads more than 1 mm inside (r_min, r_max)) and the ground truth's mask points; cd_gt_masked: the same with both clouds through the ground-truth mask (the figure reported as cd before 2026-12); mask_precision / mask_recall: the prediction's returns against the ground-truth mask";
+pub const METRIC: &str = "mae: 1000/(E*A) * sum over all E*A pixels of |pred - clamp(label, r_min, r_max)| (the paper's formula, mm); mae_masked: the same mean over the ground-truth mask; cd: 500 * symmetric chamfer (m^2) between the prediction's own points (rays whose depth reads more than 1 mm inside (r_min, r_max)) and the ground truth's mask points; cd_gt_masked: the same with both clouds through the ground-truth mask (the figure reported as cd before 2026-12); mask_precision / mask_recall: the prediction's returns against the ground-truth mask, each map's ratio averaged over the maps; mask_precision_pooled / mask_recall_pooled: the same ratios over every ray of every map (true returns over all reported, over all ground-truth returns)";
 
 const BREAKDOWN_CLASSES: &str = "surface: mask pixels with every 4-neighbour in the mask; silhouette: mask pixels with one outside; empty_far / empty_near: rays outside the mask labelled r_max / r_min. pixel_share and error_share in % (pooled over the maps), mae in mm";
 

@@ -58,6 +58,8 @@ pub struct Metrics {
     pub valid_pixels: usize,
     /// Pixels the prediction reports a return on.
     pub predicted_pixels: usize,
+    /// Pixels both report a return on (the true returns).
+    pub true_returns: usize,
     /// Pixels in the map.
     pub pixels: usize,
 }
@@ -181,6 +183,15 @@ pub fn derived_mask(gt: &[f32]) -> Vec<bool> {
         .collect()
 }
 
+/// All maps' true returns over all maps' `of` (reported or ground-truth returns); `None`
+/// when there are none.
+fn pooled(ms: &[Metrics], of: fn(&Metrics) -> usize) -> Option<f64> {
+    let (n, d) = ms.iter().fold((0usize, 0usize), |(n, d), m| {
+        (n + m.true_returns, d + of(m))
+    });
+    (d > 0).then(|| n as f64 / d as f64)
+}
+
 /// Accuracy of one model over a set of depth maps: each figure's mean and (population)
 /// standard deviation over the maps (NaN figures of a map, e.g. an empty mask, are left out).
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -205,6 +216,11 @@ pub struct Accuracy {
     pub mask_precision: Option<f64>,
     /// Mean recall of the prediction's return mask.
     pub mask_recall: Option<f64>,
+    /// Precision of the return mask over every ray of every map (true returns over reported
+    /// ones, all maps pooled): the share of the set's reported points that are real.
+    pub mask_precision_pooled: Option<f64>,
+    /// Recall over every ray of every map (true returns over the ground truth's, pooled).
+    pub mask_recall_pooled: Option<f64>,
 }
 
 impl Accuracy {
@@ -232,10 +248,13 @@ impl Accuracy {
             cd_gt_masked: stat(|m| m.cd_gt_masked).0,
             mask_precision: stat(|m| m.mask_precision).0,
             mask_recall: stat(|m| m.mask_recall).0,
+            mask_precision_pooled: pooled(ms, |m| m.predicted_pixels),
+            mask_recall_pooled: pooled(ms, |m| m.valid_pixels),
         }
     }
 
-    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s (GT-masked g), returns P p % R r %`.
+    /// One line: `MAE m ± s mm (masked m ± s mm), CD c ± s (GT-masked g), returns P p % R r %
+    /// (pooled P p % R r %)`.
     pub fn line(&self) -> String {
         let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
         if self.mae.is_none() {
@@ -243,7 +262,7 @@ impl Accuracy {
         }
         let pct = |v: Option<f64>| f(v.map(|x| 100.0 * x), 1);
         format!(
-            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {} (GT-masked {}), returns P {} % R {} %",
+            "MAE {} ± {} mm (masked {} ± {} mm), CD {} ± {} (GT-masked {}), returns P {} % R {} % (pooled P {} % R {} %)",
             f(self.mae, 2),
             f(self.mae_std, 2),
             f(self.mae_masked, 2),
@@ -253,6 +272,8 @@ impl Accuracy {
             f(self.cd_gt_masked, 4),
             pct(self.mask_precision),
             pct(self.mask_recall),
+            pct(self.mask_precision_pooled),
+            pct(self.mask_recall_pooled),
         )
     }
 }
@@ -293,6 +314,7 @@ pub fn evaluate(pred: &[f32], gt: &[f32], mask: &[bool]) -> Result<Metrics> {
         mask_recall: ratio(both, valid),
         valid_pixels: valid,
         predicted_pixels: predicted,
+        true_returns: both,
         pixels: gt.len(),
     })
 }
@@ -563,6 +585,38 @@ mod tests {
         assert!((m.cd - 0.1).abs() < 1e-4, "{}", m.cd);
         assert!((m.mae - 10.0).abs() < 1e-3);
         assert!((m.mae_masked - 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn pooled_precision_weighs_every_ray_where_the_mean_weighs_every_map() {
+        // Map 1: 9 true returns and 1 phantom; map 2: 1 true return and 1 phantom.
+        let gt_of = |n: usize| {
+            let mut gt = vec![R_MAX_M as f32; DEPTH_LEN];
+            let mut mask = vec![false; DEPTH_LEN];
+            for i in 0..n {
+                gt[i] = 2.5;
+                mask[i] = true;
+            }
+            (gt, mask)
+        };
+        let with_phantom = |gt: &[f32]| {
+            let mut pred = gt.to_vec();
+            pred[DEPTH_LEN - 1] = 2.7;
+            pred
+        };
+        let (g1, m1) = gt_of(9);
+        let (g2, m2) = gt_of(1);
+        let ms = [
+            evaluate(&with_phantom(&g1), &g1, &m1).unwrap(),
+            evaluate(&with_phantom(&g2), &g2, &m2).unwrap(),
+        ];
+        let acc = Accuracy::of(&ms);
+        let mean = acc.mask_precision.unwrap();
+        let pooled = acc.mask_precision_pooled.unwrap();
+        assert!((mean - (0.9 + 0.5) / 2.0).abs() < 1e-12, "{mean}");
+        assert!((pooled - 10.0 / 12.0).abs() < 1e-12, "{pooled}");
+        assert_eq!(acc.mask_recall_pooled, Some(1.0));
+        assert_eq!(Accuracy::of(&[]).mask_precision_pooled, None);
     }
 
     #[test]
