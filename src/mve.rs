@@ -469,6 +469,108 @@ pub fn fill_channel_pairs(
     true
 }
 
+/// The pair loop's inner loop on the i16 line: two positions' four words and two channels'
+/// (`VLD20`/`VLD21` split their interleaved words), `VMLAVA.S16` eight products each.
+macro_rules! i16_quad {
+    () => {
+        concat!(
+            "vldrw.u32    q0, [{x0}], #16\n",
+            "vldrw.u32    q1, [{x1}], #16\n",
+            "vld20.32     {{q2, q3}}, [{w}]\n",
+            "vld21.32     {{q2, q3}}, [{w}]!\n",
+            "vmlava.s16   r0, q0, q2\n",
+            "vmlava.s16   r2, q1, q2\n",
+            "vmlava.s16   r4, q0, q3\n",
+            "vmlava.s16   r8, q1, q3"
+        )
+    };
+}
+
+/// The pair loop's inner loop on the int8 line: two positions' 16 bytes and two channels'
+/// 16-byte blocks, `VMLADAVA.S8` sixteen products each.
+macro_rules! s8_block {
+    () => {
+        concat!(
+            "vldrb.u8     q0, [{x0}], #16\n",
+            "vldrb.u8     q1, [{x1}], #16\n",
+            "vldrb.u8     q2, [{w}], #16\n",
+            "vldrb.u8     q3, [{w}], #16\n",
+            "vmladava.s8  r0, q0, q2\n",
+            "vmladava.s8  r2, q1, q2\n",
+            "vmladava.s8  r4, q0, q3\n",
+            "vmladava.s8  r8, q1, q3"
+        )
+    };
+}
+
+/// The register-state pair loop of [`PairRows`] and [`PairRowsS8`]: for each channel pair,
+/// for each pair of positions, the inner loop (`$start` with the count from `st[2]`, the body,
+/// `$end`) into the biases' accumulators r0, r2 (first channel) and r4, r8 (second), then
+/// `$store`; the state array `st` as `PairRows::pairs_in_registers` documents it. `$regs`:
+/// (st, x0, x1, w, a0, a1, position pairs, first bias, second bias).
+macro_rules! pair_loop {
+    ($regs:expr, [$start:literal], [$body:ident], $end:literal, [$($store:literal),*]) => {{
+        let (st, x0, x1, w, a0, a1, pairs, b0, b1) = $regs;
+        core::arch::asm!(
+            "2:",
+            "ldr   lr, [{st}, #8]",
+            $start,
+            "3:",
+            pair_loop!(@body $body),
+            $end,
+            $($store,)*
+            // Weights back to the pair's start, inputs on to the next pair's.
+            "ldrd  r0, r2, [{st}, #12]",
+            "sub   {w}, {w}, r0",
+            "add   {x0}, {x0}, r2",
+            "add   {x1}, {x1}, r2",
+            "ldrd  r0, r4, [{st}]",
+            "mov   r2, r0",
+            "mov   r8, r4",
+            "subs  {pairs}, {pairs}, #1",
+            "bne   2b",
+            // The next channel pair: its weights, rows and biases; the row again.
+            "ldr   r0, [{st}, #20]",
+            "subs  r0, r0, #1",
+            "beq   4f",
+            "str   r0, [{st}, #20]",
+            "ldrd  {x0}, {x1}, [{st}, #24]",
+            "ldr   r0, [{st}, #32]",
+            "add   {w}, {w}, r0",
+            "ldrd  {a0}, r0, [{st}, #36]",
+            "add   {a0}, {a0}, r0, lsl #1",
+            "str   {a0}, [{st}, #36]",
+            "add   {a1}, {a0}, r0",
+            "ldr   r2, [{st}, #44]",
+            "ldrd  r0, r4, [r2], #8",
+            "str   r2, [{st}, #44]",
+            "strd  r0, r4, [{st}]",
+            "mov   r2, r0",
+            "mov   r8, r4",
+            "ldr   {pairs}, [{st}, #48]",
+            "b     2b",
+            "4:",
+            st = in(reg) st,
+            x0 = inout(reg) x0 => _,
+            x1 = inout(reg) x1 => _,
+            w = inout(reg) w => _,
+            a0 = inout(reg) a0 => _,
+            a1 = inout(reg) a1 => _,
+            pairs = inout(reg) pairs => _,
+            inout("r0") b0 => _,
+            inout("r2") b0 => _,
+            inout("r4") b1 => _,
+            inout("r8") b1 => _,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack),
+        )
+    }};
+    (@body I16_QUAD) => { i16_quad!() };
+    (@body S8_BLOCK) => { s8_block!() };
+}
+
 /// [`crate::dsp::dot2x2_row`]'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
 /// `acc0[q·astep] = bias[0] + x_q·w_0`, `acc0[(q + 1)·astep] = bias[0] + x_{q+1}·w_0` and the
 /// same with `acc1`, `bias[1]` and `w_1`, where `x_q = x[q·step .. q·step + n]` and the
@@ -579,72 +681,6 @@ impl PairRows {
             bias.as_ptr().wrapping_add(1) as u32,
             self.pairs as u32,
         ];
-        macro_rules! pairs_in_registers {
-            ($($store:literal),*) => {
-                core::arch::asm!(
-                    "2:",
-                    "ldr   lr, [{st}, #8]",
-                    "dls   lr, lr",
-                    "3:",
-                    "vldrw.u32    q0, [{x0}], #16",
-                    "vldrw.u32    q1, [{x1}], #16",
-                    "vld20.32     {{q2, q3}}, [{w}]",
-                    "vld21.32     {{q2, q3}}, [{w}]!",
-                    "vmlava.s16   r0, q0, q2",
-                    "vmlava.s16   r2, q1, q2",
-                    "vmlava.s16   r4, q0, q3",
-                    "vmlava.s16   r8, q1, q3",
-                    "le    lr, 3b",
-                    $($store,)*
-                    // Weights back to the pair's start, inputs on to the next pair's.
-                    "ldrd  r0, r2, [{st}, #12]",
-                    "sub   {w}, {w}, r0",
-                    "add   {x0}, {x0}, r2",
-                    "add   {x1}, {x1}, r2",
-                    "ldrd  r0, r4, [{st}]",
-                    "mov   r2, r0",
-                    "mov   r8, r4",
-                    "subs  {pairs}, {pairs}, #1",
-                    "bne   2b",
-                    // The next channel pair: its weights, rows and biases; the row again.
-                    "ldr   r0, [{st}, #20]",
-                    "subs  r0, r0, #1",
-                    "beq   4f",
-                    "str   r0, [{st}, #20]",
-                    "ldrd  {x0}, {x1}, [{st}, #24]",
-                    "ldr   r0, [{st}, #32]",
-                    "add   {w}, {w}, r0",
-                    "ldrd  {a0}, r0, [{st}, #36]",
-                    "add   {a0}, {a0}, r0, lsl #1",
-                    "str   {a0}, [{st}, #36]",
-                    "add   {a1}, {a0}, r0",
-                    "ldr   r2, [{st}, #44]",
-                    "ldrd  r0, r4, [r2], #8",
-                    "str   r2, [{st}, #44]",
-                    "strd  r0, r4, [{st}]",
-                    "mov   r2, r0",
-                    "mov   r8, r4",
-                    "ldr   {pairs}, [{st}, #48]",
-                    "b     2b",
-                    "4:",
-                    st = in(reg) st.as_mut_ptr(),
-                    x0 = inout(reg) x => _,
-                    x1 = inout(reg) x.add(self.step) => _,
-                    w = inout(reg) w => _,
-                    a0 = inout(reg) a0 => _,
-                    a1 = inout(reg) a1 => _,
-                    pairs = inout(reg) self.pairs => _,
-                    inout("r0") b0 => _,
-                    inout("r2") b0 => _,
-                    inout("r4") b1 => _,
-                    inout("r8") b1 => _,
-                    out("lr") _,
-                    out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                    out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                    options(nostack),
-                )
-            };
-        }
         // SAFETY (the caller's conditions): pair p of a channel pair reads x[2p·step ..][..n]
         // and x[(2p + 1)·step ..][..n] (within x_len words; n / 4 ≥ 1 inner iterations leave
         // the x pointers n words and the weight pointer 2n words on, undone by the 8n-byte
@@ -654,14 +690,37 @@ impl PairRows {
         // bytes on and its biases from the next entry of `bias` (the count in `st` stops the
         // loop after bias.len() pairs). `st` is a live local array of 13 words.
         unsafe {
+            let regs = (
+                st.as_mut_ptr(),
+                x,
+                x.add(self.step),
+                w,
+                a0,
+                a1,
+                self.pairs,
+                b0,
+                b1,
+            );
             if self.astep == 1 {
-                pairs_in_registers!("strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8");
+                pair_loop!(
+                    regs,
+                    ["dls   lr, lr"],
+                    [I16_QUAD],
+                    "le    lr, 3b",
+                    ["strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8"]
+                );
             } else {
-                pairs_in_registers!(
-                    "str   r0, [{a0}], #8",
-                    "str   r2, [{a0}], #8",
-                    "str   r4, [{a1}], #8",
-                    "str   r8, [{a1}], #8"
+                pair_loop!(
+                    regs,
+                    ["dls   lr, lr"],
+                    [I16_QUAD],
+                    "le    lr, 3b",
+                    [
+                        "str   r0, [{a0}], #8",
+                        "str   r2, [{a0}], #8",
+                        "str   r4, [{a1}], #8",
+                        "str   r8, [{a1}], #8"
+                    ]
                 );
             }
         }
@@ -1482,68 +1541,23 @@ impl PairRowsS8 {
         // a live local array of 13 words.
         #[allow(unsafe_code)]
         unsafe {
-            core::arch::asm!(
-                "2:",
-                "ldr   lr, [{st}, #8]",
-                "dlstp.8      lr, lr",
-                "3:",
-                "vldrb.u8     q0, [{x0}], #16",
-                "vldrb.u8     q1, [{x1}], #16",
-                "vldrb.u8     q2, [{w}], #16",
-                "vldrb.u8     q3, [{w}], #16",
-                "vmladava.s8  r0, q0, q2",
-                "vmladava.s8  r2, q1, q2",
-                "vmladava.s8  r4, q0, q3",
-                "vmladava.s8  r8, q1, q3",
+            let regs = (
+                st.as_mut_ptr(),
+                x.as_ptr(),
+                x.as_ptr().add(self.step),
+                w.as_ptr(),
+                a0,
+                a0.add(rstride),
+                self.pairs,
+                b0,
+                b1,
+            );
+            pair_loop!(
+                regs,
+                ["dlstp.8      lr, lr"],
+                [S8_BLOCK],
                 "letp  lr, 3b",
-                "strd  r0, r2, [{a0}], #8",
-                "strd  r4, r8, [{a1}], #8",
-                // Weights back to the pair's start, inputs on to the next pair's.
-                "ldrd  r0, r2, [{st}, #12]",
-                "sub   {w}, {w}, r0",
-                "add   {x0}, {x0}, r2",
-                "add   {x1}, {x1}, r2",
-                "ldrd  r0, r4, [{st}]",
-                "mov   r2, r0",
-                "mov   r8, r4",
-                "subs  {pairs}, {pairs}, #1",
-                "bne   2b",
-                // The next channel pair: its weights, rows and biases; the row again.
-                "ldr   r0, [{st}, #20]",
-                "subs  r0, r0, #1",
-                "beq   4f",
-                "str   r0, [{st}, #20]",
-                "ldrd  {x0}, {x1}, [{st}, #24]",
-                "ldr   r0, [{st}, #32]",
-                "add   {w}, {w}, r0",
-                "ldrd  {a0}, r0, [{st}, #36]",
-                "add   {a0}, {a0}, r0, lsl #1",
-                "str   {a0}, [{st}, #36]",
-                "add   {a1}, {a0}, r0",
-                "ldr   r2, [{st}, #44]",
-                "ldrd  r0, r4, [r2], #8",
-                "str   r2, [{st}, #44]",
-                "strd  r0, r4, [{st}]",
-                "mov   r2, r0",
-                "mov   r8, r4",
-                "ldr   {pairs}, [{st}, #48]",
-                "b     2b",
-                "4:",
-                st = in(reg) st.as_mut_ptr(),
-                x0 = inout(reg) x.as_ptr() => _,
-                x1 = inout(reg) x.as_ptr().add(self.step) => _,
-                w = inout(reg) w.as_ptr() => _,
-                a0 = inout(reg) a0 => _,
-                a1 = inout(reg) a0.add(rstride) => _,
-                pairs = inout(reg) self.pairs => _,
-                inout("r0") b0 => _,
-                inout("r2") b0 => _,
-                inout("r4") b1 => _,
-                inout("r8") b1 => _,
-                out("lr") _,
-                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-                options(nostack),
+                ["strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8"]
             );
         }
         true
