@@ -348,20 +348,8 @@ pub fn fill_channel_pairs(
     static ZERO_ROW: [i8; 256] = [0; 256];
     let pairs = channels / 2;
     let words = at.len().checked_mul(pairs);
-    let last_row = channels.checked_sub(1).and_then(|c| c.checked_mul(cs));
-    let rows_fit = at.iter().all(|&a| {
-        a == usize::MAX
-            || last_row
-                .and_then(|r| r.checked_add(a))
-                .and_then(|r| r.checked_add(need))
-                .is_some_and(|e| e <= input.len())
-    });
-    let dst_fits = need
-        .checked_sub(1)
-        .and_then(|j| j.checked_mul(vw))
-        .zip(words)
-        .and_then(|(e, w)| e.checked_add(w.checked_sub(1)?))
-        .is_some_and(|last| last < dst.len());
+    let rows_fit = rows_within(input.len(), at, (channels, cs), need);
+    let dst_fits = columns_within(dst.len(), need, vw, words);
     if pairs == 0
         || !channels.is_multiple_of(2)
         || need == 0
@@ -467,6 +455,33 @@ pub fn fill_channel_pairs(
         }
     }
     true
+}
+
+/// Whether every tap's rows lie within an input of `input_len` bytes: tap `t`'s channel `i`
+/// reads `len` bytes from `at[t] + i·cs` (`usize::MAX`: a tap outside the input, which reads
+/// no row). The line fills' check of their sources.
+#[inline(always)]
+fn rows_within(input_len: usize, at: &[usize], (channels, cs): (usize, usize), len: usize) -> bool {
+    let last_row = channels.checked_sub(1).and_then(|c| c.checked_mul(cs));
+    at.iter().all(|&a| {
+        a == usize::MAX
+            || last_row
+                .and_then(|r| r.checked_add(a))
+                .and_then(|r| r.checked_add(len))
+                .is_some_and(|e| e <= input_len)
+    })
+}
+
+/// Whether `count` entries in each of `len` columns `stride` apart (`count` `None`: it
+/// overflowed) lie within a line of `dst_len` elements. The line fills' check of their
+/// destination.
+#[inline(always)]
+fn columns_within(dst_len: usize, len: usize, stride: usize, count: Option<usize>) -> bool {
+    len.checked_sub(1)
+        .and_then(|j| j.checked_mul(stride))
+        .zip(count)
+        .and_then(|(e, n)| e.checked_add(n.checked_sub(1)?))
+        .is_some_and(|last| last < dst_len)
 }
 
 /// The pair loop's inner loop on the i16 line: two positions' four words and two channels'
@@ -1311,21 +1326,9 @@ pub fn fill_bytes(
     (channels, cs): (usize, usize),
     pad: &[i8],
 ) -> bool {
-    let last_row = channels.checked_sub(1).and_then(|c| c.checked_mul(cs));
-    let rows_fit = at.iter().all(|&a| {
-        a == usize::MAX
-            || last_row
-                .and_then(|r| r.checked_add(a))
-                .and_then(|r| r.checked_add(len))
-                .is_some_and(|e| e <= input.len())
-    });
+    let rows_fit = rows_within(input.len(), at, (channels, cs), len);
     let entries = at.len().checked_mul(channels);
-    let dst_fits = len
-        .checked_sub(1)
-        .and_then(|j| j.checked_mul(vp))
-        .zip(entries)
-        .and_then(|(e, n)| e.checked_add(n.checked_sub(1)?))
-        .is_some_and(|last| last < dst.len());
+    let dst_fits = columns_within(dst.len(), len, vp, entries);
     if channels == 0
         || len == 0
         || len > 256

@@ -1115,8 +1115,9 @@ pub(crate) fn run_conv(
     }
 }
 
-/// [`conv`] on an int8 line with Helium, for the shapes it takes (false, nothing written,
-/// for the others, which [`conv`] runs): the line holds the raw inputs, entry `v = (tap,
+/// The forward line engine of a Helium build (the other builds' is `conv`), on an int8 line,
+/// for the shapes it takes (false, nothing written, for the others, which the caller's im2col
+/// engine runs): the line holds the raw inputs, entry `v = (tap,
 /// channel)` of column `c` at byte `c·vp + v` (`mve::fill_bytes`), padding entries hold the
 /// input's zero point `−input_offset`, and `input_offset · Σ w` is folded into each
 /// channel's bias, so that `bias + Σ w·x` over the line is exactly the i16 line's `bias +
@@ -1142,9 +1143,7 @@ fn conv_s8<R: Apply>(
     let (pw, iw) = (shape.padding[2], shape.in_size[2]);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let per_channel = kd * kh;
-    let v_len = ic * per_channel;
-    let vp = up4(v_len);
-    let cols = (ow.max(1) - 1) * sw + kw;
+    let (vp, cols) = (conv_v(shape), conv_cols(shape));
     let (lo, hi) = (pw.min(cols), (iw + pw).min(cols));
     let len = hi.saturating_sub(lo).min(MAX_ROW);
     let in0 = lo.saturating_sub(pw);
