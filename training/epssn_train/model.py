@@ -1,0 +1,219 @@
+"""The float EPSSN in PyTorch, layer by layer from the spec (host-sim's f64 reference network,
+`epssn_reference::floatref`, and the burn trainer it replaces define the same network).
+
+1. u8 polar images of all views, divided by 255;
+2. the feature net on every view (Conv2d, BatchNorm, ReLU as the spec says);
+3. every source view k ≥ 1 warped through the spec's pure-roll table with the *quantised*
+   fraction: `F[c]·(1 − α/2^bits) + F[c+1]·α/2^bits` (`F[c+1]` only where α > 0), invisible
+   entries 0 — the very table the firmware uses;
+4. the cost volume: the population variance over the views, the last `mean_channels`
+   channels their mean clipped at 0;
+5. the cost net (Conv3d / ConvTranspose3d, BatchNorm, ReLU, then `+ skip`), the head's logits
+   `[B][1][E][R][A]`;
+6. softmax over R, depth = clamp(Σ p_i·bin_i, r_min, r_max); at inference the no-return
+   decision: r_max where the last bin holds ≥ τ of the mass, else r_min where the first does.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from .spec import Spec
+
+BN_EPSILON = 1e-5
+BN_MOMENTUM = 0.1
+
+
+
+
+def fake_quant(x, scale, lo, hi):
+    """`x` clipped to the int8 grid and rounded to its codes in the forward pass; the gradient
+    is the clip's (straight-through), as `host-sim train --fake-quant` does."""
+    clipped = x.clamp(lo * scale, hi * scale)
+    rounded = torch.round(clipped / scale) * scale
+    return clipped + (rounded - clipped).detach()
+
+
+class Block(nn.Module):
+    def __init__(self, l):
+        super().__init__()
+        k = dict(kernel_size=tuple(l.kernel), stride=tuple(l.stride), padding=tuple(l.padding),
+                 bias=True)
+        if l.kind == "conv2d":
+            self.conv = nn.Conv2d(l.cin, l.cout, **k)
+            bn = nn.BatchNorm2d
+        elif l.kind == "conv3d":
+            self.conv = nn.Conv3d(l.cin, l.cout, **k)
+            bn = nn.BatchNorm3d
+        elif l.kind == "conv_transpose3d":
+            self.conv = nn.ConvTranspose3d(l.cin, l.cout, output_padding=tuple(l.output_padding),
+                                           **k)
+            bn = nn.BatchNorm3d
+        else:
+            raise ValueError(f"layer {l.name}: unknown kind {l.kind}")
+        self.bn = bn(l.cout, eps=BN_EPSILON, momentum=BN_MOMENTUM) if l.batch_norm else None
+        self.relu = l.relu
+
+    def forward(self, x):
+        x = self.conv(x)
+        if self.bn is not None:
+            x = self.bn(x)
+        return torch.relu(x) if self.relu else x
+
+
+class Epssn(nn.Module):
+    def __init__(self, spec: Spec):
+        super().__init__()
+        self.spec = spec
+        self.layers = nn.ModuleDict(OrderedDict((l.name, Block(l)) for l in spec.layers))
+        self.feature_names = [l.name for l in spec.feature_net]
+        self.cost_names = [l.name for l in spec.cost_net]
+        self.skips = {l.name: l.skip for l in spec.cost_net}
+        self.fake_quant = {}
+        # Warp tables as gather indices and weights, per source view k = 1..max_views-1.
+        for k in range(1, spec.max_views):
+            col, frac, vis = spec.warp_table(k)
+            one = float(1 << spec.fraction_bits)
+            a = frac / one
+            wl = np.where(vis, 1.0 - a, 0.0)
+            wr = np.where(vis & (frac > 0), a, 0.0)
+            right = np.where(vis & (frac > 0), col + 1, col)
+            self.register_buffer(f"warp{k}_left", torch.from_numpy(col.copy()), persistent=False)
+            self.register_buffer(f"warp{k}_right", torch.from_numpy(right), persistent=False)
+            self.register_buffer(f"warp{k}_wl", torch.from_numpy(wl), persistent=False)
+            self.register_buffer(f"warp{k}_wr", torch.from_numpy(wr), persistent=False)
+        self.register_buffer("bins", torch.tensor(spec.depth_bin_ranges, dtype=torch.float64),
+                             persistent=False)
+
+    def set_fake_quant(self, scales: dict):
+        """Round the named activations to their int8 grids (cost 0..255, others −128..127)."""
+        known = set(self.feature_names) | set(self.cost_names) | {"cost"}
+        for n, s in scales.items():
+            if n not in known or not (s > 0 and np.isfinite(s)):
+                raise ValueError(f"fake quantisation of {n} at scale {s}")
+        self.fake_quant = {n: (float(s), 0.0 if n == "cost" else -128.0,
+                               255.0 if n == "cost" else 127.0) for n, s in scales.items()}
+
+    def _q(self, name, x):
+        g = self.fake_quant.get(name)
+        return fake_quant(x, *g) if g else x
+
+    def warp(self, f, k):
+        """`f` [B][C][H][W] → [B][C][N][H][W] through view k's table."""
+        left = getattr(self, f"warp{k}_left")
+        n, w = left.shape
+        dt = f.dtype
+        gl = f[..., left.reshape(-1)].reshape(*f.shape[:-1], n, w)
+        gr = f[..., getattr(self, f"warp{k}_right").reshape(-1)].reshape(*f.shape[:-1], n, w)
+        out = gl * getattr(self, f"warp{k}_wl").to(dt) + gr * getattr(self, f"warp{k}_wr").to(dt)
+        # [B][C][H][N][W] → [B][C][N][H][W]
+        return out.permute(0, 1, 3, 2, 4)
+
+    def forward(self, views):
+        """`views`: list of 2 or 3 tensors [B][1][R][W] of u8 values (any float dtype).
+        Returns (soft depth [B][E][A] metres clamped to the window, logits [B][1][E][R][A])."""
+        nv = len(views)
+        if not 2 <= nv <= 3:
+            raise ValueError(f"the model takes 2 or 3 views, got {nv}")
+        b = views[0].shape[0]
+        x = torch.cat(views, 0) / 255.0
+        for name in self.feature_names:
+            x = self._q(name, self.layers[name](x))
+        n = self.spec.planes
+        ref = x[:b].unsqueeze(2).expand(-1, -1, n, -1, -1)
+        vols = [ref] + [self.warp(x[k * b:(k + 1) * b], k) for k in range(1, nv)]
+        s = vols[0]
+        for v in vols[1:]:
+            s = s + v
+        mean = s / nv
+        var = None
+        for v in vols:
+            d = (v - mean) ** 2
+            var = d if var is None else var + d
+        var = var / nv
+        c, m = self.spec.channels, self.spec.mean_channels
+        cost = var if m == 0 else torch.cat([var[:, :c - m], torch.relu(mean[:, c - m:])], 1)
+        cost = self._q("cost", cost)
+        named = {"cost": cost}
+        y = cost
+        for name in self.cost_names:
+            y = self.layers[name](y)
+            skip = self.skips[name]
+            if skip:
+                y = y + named[skip]
+            y = self._q(name, y)
+            named[name] = y
+        logits = y
+        p = torch.softmax(logits, dim=3)
+        bins = self.bins.to(logits.dtype).reshape(1, 1, 1, -1, 1)
+        depth = (p * bins).sum(3).reshape(b, logits.shape[2], logits.shape[4])
+        return depth.clamp(self.spec.r_min, self.spec.r_max), logits
+
+    @torch.no_grad()
+    def depth(self, views):
+        """Inference depth with the no-return decision, as floatref computes it (softmax in
+        f64 on the logits, clamp, then the end-bin masses against τ)."""
+        _, logits = self.forward(views)
+        lg = logits[:, 0].double()  # [B][E][R][A]
+        p = torch.softmax(lg, dim=2)
+        bins = self.bins.reshape(1, 1, -1, 1)
+        soft = (p * bins).sum(2).clamp(self.spec.r_min, self.spec.r_max)
+        tau = self.spec.no_return_mass
+        if tau > 0:
+            far, near = p[:, :, -1], p[:, :, 0]
+            soft = torch.where(near >= tau, torch.full_like(soft, self.spec.r_min), soft)
+            soft = torch.where(far >= tau, torch.full_like(soft, self.spec.r_max), soft)
+        return soft.float()
+
+    # --- weights: the tensor names of weights/<name>/model.safetensors ---------------------
+
+    def to_tensors(self):
+        out = {}
+        for name, blk in self.layers.items():
+            out[f"{name}.conv.weight"] = blk.conv.weight
+            out[f"{name}.conv.bias"] = blk.conv.bias
+            if blk.bn is not None:
+                out[f"{name}.bn.gamma"] = blk.bn.weight
+                out[f"{name}.bn.beta"] = blk.bn.bias
+                out[f"{name}.bn.running_mean"] = blk.bn.running_mean
+                out[f"{name}.bn.running_var"] = blk.bn.running_var
+        return {k: v.detach().float().contiguous().cpu() for k, v in out.items()}
+
+    @torch.no_grad()
+    def load_tensors(self, tensors: dict):
+        mine = self.to_tensors()
+        missing = sorted(set(mine) - set(tensors))
+        if missing:
+            raise KeyError(f"weights lack {', '.join(missing)}")
+        for name, blk in self.layers.items():
+            pairs = [(blk.conv.weight, "conv.weight"), (blk.conv.bias, "conv.bias")]
+            if blk.bn is not None:
+                pairs += [(blk.bn.weight, "bn.gamma"), (blk.bn.bias, "bn.beta"),
+                          (blk.bn.running_mean, "bn.running_mean"),
+                          (blk.bn.running_var, "bn.running_var")]
+            for t, suffix in pairs:
+                src = torch.as_tensor(np.asarray(tensors[f"{name}.{suffix}"]))
+                if tuple(src.shape) != tuple(t.shape):
+                    raise ValueError(f"{name}.{suffix}: shape {tuple(src.shape)}, the spec "
+                                     f"wants {tuple(t.shape)}")
+                t.copy_(src.to(t.dtype))
+
+
+def init_uniform(model: Epssn, seed: int):
+    """uniform(±1/√fan_in) weights and biases (the burn trainer's and PyTorch's default), gamma
+    1, beta 0, running mean 0, running var 1."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for l in model.spec.layers:
+            blk = model.layers[l.name]
+            fan_in = l.cin * int(np.prod(l.kernel))
+            bound = 1.0 / max(fan_in, 1) ** 0.5
+            for t in (blk.conv.weight, blk.conv.bias):
+                t.copy_((torch.rand(t.shape, generator=g, dtype=torch.float64) * 2 - 1) * bound)
+            if blk.bn is not None:
+                blk.bn.reset_parameters()
