@@ -48,7 +48,9 @@ def write_loss_csv(path: Path, rows):
     with open(path, "w") as f:
         f.write("epoch,step,train_loss,val_loss\n")
         for r in rows:
-            f.write(f"{r['epoch']},{r['step']},{r['train_loss']},{r['val_loss']}\n")
+            # Rust's spelling of a missing validation loss, which host-sim's reader parses.
+            v = "NaN" if not np.isfinite(r["val_loss"]) else r["val_loss"]
+            f.write(f"{r['epoch']},{r['step']},{r['train_loss']},{v}\n")
 
 
 def plot_curves(path: Path, rows):
