@@ -69,7 +69,7 @@ def bench(args) -> int:
         torch.set_num_threads(args.threads)
     spec = Spec(Path(args.spec))
     dev = select_device(args.device, torch.cuda.is_available())
-    model = Epssn(spec)
+    model = Epssn(spec, channels_last=args.channels_last)
     init_uniform(model, 1)
     model = model.to(dev).train()
     opt = torch.optim.Adam(model.parameters(), lr=spec.lr)
@@ -149,6 +149,8 @@ def main(argv=None) -> int:
     b.add_argument("--json", action="store_true")
     b.add_argument("--threads", type=int)
     b.add_argument("--device", default="cpu")
+    b.add_argument("--channels-last", action="store_true",
+                   help="channels-last activations (oneDNN 3D convolutions) for comparison")
     b.add_argument("--ce-weight", type=float, default=0.02)
     b.add_argument("--no-return-weight", type=float, default=0.7)
 
