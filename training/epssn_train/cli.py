@@ -111,11 +111,14 @@ def bench(args) -> int:
             torch.cuda.synchronize()
 
     step()  # warm-up: allocator and kernels
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(args.steps):
         step()
     sps = (time.perf_counter() - t0) / max(args.steps, 1)
+    # CPU seconds of all threads: on a shared machine less sensitive to others' load.
+    cpu = (time.process_time() - c0) / max(args.steps, 1)
     res = {"seconds_per_step": sps, "batch": b, "threads": torch.get_num_threads(),
+           "cpu_seconds_per_step": cpu,
            "spec": spec.name, "device": dev, "steps": args.steps,
            "torch": torch.__version__}
     print(json.dumps(res) if args.json else

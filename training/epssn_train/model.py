@@ -59,11 +59,70 @@ class Block(nn.Module):
         self.bn = bn(l.cout, eps=BN_EPSILON, momentum=BN_MOMENTUM) if l.batch_norm else None
         self.relu = l.relu
 
+        self.subpixel = None
+        if l.kind == "conv_transpose3d":
+            self.subpixel = _subpixel_plan(l.kernel, l.stride, l.padding)
+
     def forward(self, x):
-        x = self.conv(x)
+        if self.subpixel is not None and _SUBPIXEL:
+            x = _conv_transpose_subpixel(x, self.conv, *self.subpixel)
+        else:
+            x = self.conv(x)
         if self.bn is not None:
             x = self.bn(x)
         return torch.relu(x) if self.relu else x
+
+
+# Transposed convolutions as sub-pixel convolutions (below); False runs PyTorch's own.
+_SUBPIXEL = True
+
+
+def _subpixel_plan(kernel, stride, padding):
+    """A transposed convolution whose output is its input × stride in every dimension is a
+    plain convolution with stride 1 giving ∏stride phases per output channel, interleaved:
+    output `t = q·s + r` sums inputs `z = q + d` through tap `kz = r + p − d·s`. PyTorch's CPU
+    transposed 3D convolution runs a slow generic path (the head's was a quarter of a step);
+    the plain convolution runs oneDNN's. Returns (gather index into the flattened kernel with
+    one extra zero tap, pads (left, right) per dimension, strides)."""
+    offsets = []
+    for k, s, p in zip(kernel, stride, padding):
+        ds = [(r + p - kz) // s for r in range(s) for kz in range(k) if (r + p - kz) % s == 0]
+        offsets.append((min(ds), max(ds)))
+    ks = [hi - lo + 1 for lo, hi in offsets]
+    kvol = int(np.prod(kernel))
+    phases = int(np.prod(stride))
+    idx = np.full((phases, *ks), kvol, np.int64)
+    for ph in range(phases):
+        r = np.unravel_index(ph, stride)
+        for t in np.ndindex(*ks):
+            taps = []
+            for dim in range(3):
+                d = t[dim] + offsets[dim][0]
+                kz = r[dim] + padding[dim] - d * stride[dim]
+                taps.append(kz if 0 <= kz < kernel[dim] else -1)
+            if min(taps) >= 0:
+                idx[(ph, *t)] = np.ravel_multi_index(taps, kernel)
+    pads = [(-lo, hi) for lo, hi in offsets]
+    return torch.from_numpy(idx), pads, list(stride)
+
+
+def _conv_transpose_subpixel(x, conv, idx, pads, stride):
+    ci, co = conv.weight.shape[:2]
+    b, _, dz, dy, dx = x.shape
+    out = [(n - 1) * s - 2 * p + k + op for n, s, p, k, op in
+           zip((dz, dy, dx), stride, conv.padding, conv.kernel_size, conv.output_padding)]
+    if out != [dz * stride[0], dy * stride[1], dx * stride[2]]:
+        return conv(x)
+    phases = idx.shape[0]
+    w = conv.weight.permute(1, 0, 2, 3, 4).reshape(co, ci, -1)
+    w = torch.cat([w, w.new_zeros(co, ci, 1)], 2)[:, :, idx.reshape(-1)]
+    w = w.reshape(co, ci, phases, *idx.shape[1:]).transpose(1, 2)
+    w = w.reshape(co * phases, ci, *idx.shape[1:])
+    xp = F.pad(x, (pads[2][0], pads[2][1], pads[1][0], pads[1][1], pads[0][0], pads[0][1]))
+    y = F.conv3d(xp, w, conv.bias.repeat_interleave(phases))
+    sz, sy, sx = stride
+    y = y.reshape(b, co, sz, sy, sx, dz, dy, dx).permute(0, 1, 5, 2, 6, 3, 7, 4)
+    return y.reshape(b, co, dz * sz, dy * sy, dx * sx)
 
 
 class Epssn(nn.Module):

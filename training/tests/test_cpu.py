@@ -90,3 +90,24 @@ def test_a_few_steps_lower_the_loss_on_one_batch():
         opt.step()
         losses.append(float(loss.detach()))
     assert losses[-1] < losses[0] * 0.8, losses
+
+
+@pytest.mark.parametrize("name", ["u1", "u0", "head"])
+def test_subpixel_transposed_convolution_equals_pytorchs(name):
+    import epssn_train.model as mm
+    spec = Spec(ROOT / "weights" / "epssn-s.json")
+    model = Epssn(spec).double()
+    init_uniform(model, 5)
+    blk = model.layers[name]
+    l = next(l for l in spec.cost_net if l.name == name)
+    shape = {"u1": (2, 16, 4, 16, 4), "u0": (2, 8, 8, 32, 8), "head": (2, 8, 16, 64, 16)}[name]
+    x = torch.rand(*shape, dtype=torch.float64, requires_grad=True)
+    y = mm._conv_transpose_subpixel(x, blk.conv, *blk.subpixel)
+    ref = blk.conv(x)
+    assert y.shape == ref.shape and l.kind == "conv_transpose3d"
+    assert torch.allclose(y, ref, atol=1e-12)
+    g = torch.rand_like(ref)
+    gy = torch.autograd.grad(y, (x, blk.conv.weight), g)
+    gr = torch.autograd.grad(ref, (x, blk.conv.weight), g)
+    for a, b in zip(gy, gr):
+        assert torch.allclose(a, b, atol=1e-10)
