@@ -138,18 +138,22 @@ class Epssn(nn.Module):
         self.cost_names = [l.name for l in spec.cost_net]
         self.skips = {l.name: l.skip for l in spec.cost_net}
         self.fake_quant = {}
-        # Warp tables as gather indices and weights, per source view k = 1..max_views-1.
+        # Warp tables as a [W][N·W] matrix per source view k = 1..max_views-1, two non-zeros
+        # per column (the left and right taps): the gather as one matrix product, whose
+        # backward is another (the indexed gather's backward scatters, 2x slower here).
         for k in range(1, spec.max_views):
             col, frac, vis = spec.warp_table(k)
             one = float(1 << spec.fraction_bits)
-            a = frac / one
-            wl = np.where(vis, 1.0 - a, 0.0)
-            wr = np.where(vis & (frac > 0), a, 0.0)
-            right = np.where(vis & (frac > 0), col + 1, col)
-            self.register_buffer(f"warp{k}_left", torch.from_numpy(col.copy()), persistent=False)
-            self.register_buffer(f"warp{k}_right", torch.from_numpy(right), persistent=False)
-            self.register_buffer(f"warp{k}_wl", torch.from_numpy(wl), persistent=False)
-            self.register_buffer(f"warp{k}_wr", torch.from_numpy(wr), persistent=False)
+            n, w = col.shape
+            m = np.zeros((w, n * w))
+            for j in range(n):
+                for b in range(w):
+                    if vis[j, b]:
+                        a = frac[j, b] / one
+                        m[col[j, b], j * w + b] += 1.0 - a
+                        if frac[j, b] > 0:
+                            m[col[j, b] + 1, j * w + b] += a
+            self.register_buffer(f"warp{k}", torch.from_numpy(m), persistent=False)
         if channels_last:
             for l in spec.layers:
                 fmt = torch.channels_last if l.kind == "conv2d" else torch.channels_last_3d
@@ -172,12 +176,9 @@ class Epssn(nn.Module):
 
     def warp(self, f, k):
         """`f` [B][C][H][W] → [B][C][N][H][W] through view k's table."""
-        left = getattr(self, f"warp{k}_left")
-        n, w = left.shape
-        dt = f.dtype
-        gl = f[..., left.reshape(-1)].reshape(*f.shape[:-1], n, w)
-        gr = f[..., getattr(self, f"warp{k}_right").reshape(-1)].reshape(*f.shape[:-1], n, w)
-        out = gl * getattr(self, f"warp{k}_wl").to(dt) + gr * getattr(self, f"warp{k}_wr").to(dt)
+        m = getattr(self, f"warp{k}").to(f.dtype)
+        w = f.shape[-1]
+        out = (f @ m).reshape(*f.shape[:-1], m.shape[1] // w, w)
         # [B][C][H][N][W] → [B][C][N][H][W]
         return out.permute(0, 1, 3, 2, 4)
 
