@@ -91,7 +91,8 @@ def bench(args) -> int:
     model = Epssn(spec, channels_last=args.channels_last)
     init_uniform(model, 1)
     model = model.to(dev).train()
-    opt = torch.optim.Adam(model.parameters(), lr=spec.lr)
+    opt = torch.optim.Adam(model.parameters(), lr=spec.lr, eps=1e-5)
+    net = torch.compile(model) if args.compile else model
     g = torch.Generator().manual_seed(0)
     b = args.batch
     views = [torch.randint(0, 256, (b, 1, spec.range_bins, spec.beam_columns), generator=g)
@@ -102,7 +103,7 @@ def bench(args) -> int:
 
     def step():
         opt.zero_grad(set_to_none=True)
-        d, logits = model(views)
+        d, logits = net(views)
         loss, _ = total_loss(d, logits, depth, mask, spec, model.bins, args.ce_weight,
                              args.no_return_weight)
         loss.backward()
@@ -110,7 +111,9 @@ def bench(args) -> int:
         if dev.startswith("cuda"):
             torch.cuda.synchronize()
 
-    step()  # warm-up: allocator and kernels
+    step()  # warm-up: allocator and kernels (and the compilation with --compile)
+    if args.compile:
+        step()
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(args.steps):
         step()
@@ -119,7 +122,7 @@ def bench(args) -> int:
     cpu = (time.process_time() - c0) / max(args.steps, 1)
     res = {"seconds_per_step": sps, "batch": b, "threads": torch.get_num_threads(),
            "cpu_seconds_per_step": cpu,
-           "spec": spec.name, "device": dev, "steps": args.steps,
+           "spec": spec.name, "device": dev, "steps": args.steps, "compiled": args.compile,
            "torch": torch.__version__}
     print(json.dumps(res) if args.json else
           f"{spec.name}: {sps:.3f} s per batch-{b} step on {dev}, {res['threads']} threads")
@@ -154,6 +157,8 @@ def main(argv=None) -> int:
     f.add_argument("--threads", type=int, help="torch CPU threads")
     f.add_argument("--scene", default="general", help="name recorded in the manifest")
     f.add_argument("--no-progress", action="store_true")
+    f.add_argument("--compile", action="store_true",
+                   help="torch.compile the model: a minute or more first, then faster steps")
 
     pr = sub.add_parser("predict", help="float depth maps of every sample folder")
     pr.add_argument("--weights", required=True, type=Path)
@@ -171,6 +176,8 @@ def main(argv=None) -> int:
     b.add_argument("--json", action="store_true")
     b.add_argument("--threads", type=int)
     b.add_argument("--device", default="cpu")
+    b.add_argument("--compile", action="store_true",
+                   help="torch.compile the model (a minute or more to compile, not timed)")
     b.add_argument("--no-malloc-tuning", action="store_true",
                    help="leave glibc's allocator thresholds as they are (for comparison)")
     b.add_argument("--channels-last", action="store_true",

@@ -206,6 +206,8 @@ def fit(args) -> int:
     if world > 1:
         net = nn.parallel.DistributedDataParallel(
             model, device_ids=[local] if dev.startswith("cuda") else None)
+    if args.compile:
+        net = torch.compile(net)
     net.train()
 
     def save_checkpoint():
