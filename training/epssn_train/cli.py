@@ -186,6 +186,11 @@ def main(argv=None) -> int:
     b.add_argument("--no-return-weight", type=float, default=0.7)
 
     args = p.parse_args(argv)
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        print("epssn-train needs PyTorch: pip install torch (docs/TRAINING.md)", file=sys.stderr)
+        return 2
     if args.cmd in ("fit", "bench") and not getattr(args, "no_malloc_tuning", False):
         tune_malloc()
     if args.cmd == "predict":
