@@ -43,6 +43,14 @@ def select_device(requested: str, cuda_available: bool, local_rank: int = 0) -> 
     return f"cuda:{local_rank}"
 
 
+def _device(requested, cuda_available, local_rank=0):
+    """select_device, its refusal as a one-line exit."""
+    try:
+        return select_device(requested, cuda_available, local_rank)
+    except (RuntimeError, ValueError) as e:
+        raise SystemExit(f"epssn-train: {e}")
+
+
 def _model(spec_path, weights_dir=None):
     import torch
     from .io import SPEC_FILE, WEIGHTS_FILE, read_safetensors
@@ -87,7 +95,7 @@ def bench(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     spec = Spec(Path(args.spec))
-    dev = select_device(args.device, torch.cuda.is_available())
+    dev = _device(args.device, torch.cuda.is_available())
     model = Epssn(spec, channels_last=args.channels_last)
     init_uniform(model, 1)
     model = model.to(dev).train()
