@@ -129,7 +129,7 @@ def bench(args) -> int:
     # CPU seconds of all threads: on a shared machine less sensitive to others' load.
     cpu = (time.process_time() - c0) / max(args.steps, 1)
     res = {"seconds_per_step": sps, "batch": b, "threads": torch.get_num_threads(),
-           "cpu_seconds_per_step": cpu,
+           "cpu_seconds_per_step": cpu, "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
            "spec": spec.name, "device": dev, "steps": args.steps, "compiled": args.compile,
            "torch": torch.__version__}
     print(json.dumps(res) if args.json else
@@ -194,6 +194,10 @@ def main(argv=None) -> int:
     b.add_argument("--no-return-weight", type=float, default=0.7)
 
     args = p.parse_args(argv)
+    # Before torch loads its OpenMP runtime: idle threads sleep rather than spin. On a machine
+    # whose cores other work shares, spinning made a 2-thread EPSSN-S step 3-4x slower
+    # (1.2-1.8 s against 0.38-0.40 s, docs/TRAINING.md). OMP_WAIT_POLICY=ACTIVE restores it.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
         import torch  # noqa: F401
     except ImportError:
