@@ -127,5 +127,11 @@ EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/ep
     --target m55 --frames 3 --faults 0 --json
 echo "(EPSSN-P step $((SECONDS - p_start)) s)"
 
+step "PyTorch trainer (training/): float agreement with the f64 reference, data-parallel fit"
+# A venv under target/ with torch (the README's main job needs none); predict against
+# host-sim eval --save-depth on fresh samples, max |delta| <= 0.1 mm, EPSSN-S 2 and 3 views and
+# EPSSN-P (whose host-sim builds in target/epssn-p beside the step above); 10 torchrun steps.
+bash training/tests/run.sh
+
 step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"
 bash scripts/fuzz.sh 60

@@ -39,6 +39,11 @@ pub struct EvalArgs {
     /// empty near rays, pooled over the maps (`epssn_sim::metrics::ErrorBreakdown`).
     #[arg(long)]
     pub breakdown: bool,
+    /// Also write each sample's float depth map (the f64 reference network's) to
+    /// `<DIR>/<sample>/depth_float.npy`: f32 metres, elevation rows × azimuth columns, the
+    /// layout `epssn-train predict` writes, so the two float networks can be compared.
+    #[arg(long, value_name = "DIR")]
+    pub save_depth: Option<PathBuf>,
 }
 
 /// The metric's exact definition, as `eval --json` states it.
@@ -71,6 +76,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         args.limit,
     )?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
+    if let Some(out) = &args.save_depth {
+        save_depth(&weights, &set, out)?;
+    }
     let looks = Looks::of(&dir, &weights);
     for w in &looks.warnings {
         eprintln!("warning: {w}");
@@ -205,6 +213,27 @@ fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample) -> Result<Vec<
     Ok(floatref::run_folded(folded, &views, &mut |_, _| {})
         .with_context(|| format!("float network on {}", sample.dir.display()))?
         .depth)
+}
+
+/// Writes every sample's float depth map to `<out>/<sample folder name>/depth_float.npy`.
+fn save_depth(weights_dir: &Path, set: &[Sample], out: &Path) -> Result<()> {
+    use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS};
+    let folded = floatref::fold_all(&weights::load(weights_dir)?.float)?;
+    for sample in set {
+        let name = sample
+            .dir
+            .file_name()
+            .ok_or_else(|| anyhow!("{} has no folder name", sample.dir.display()))?;
+        let dir = out.join(name);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let depth = float_depth(&folded, sample)?;
+        epssn_aris::npy::write_f32(
+            &dir.join("depth_float.npy"),
+            &[DEPTH_ROWS, DEPTH_COLUMNS],
+            &depth,
+        )?;
+    }
+    Ok(())
 }
 
 /// Mean of a list (NaN for none: JSON null, a table's NaN).
