@@ -13,7 +13,7 @@ use epssn_aris::npy;
 use epssn_sim::poses;
 use epssn_sim::site::Site;
 
-use crate::run::{blob_views, pair_recording, PairingArgs};
+use crate::pairing::{blob_views, pair_recording, PairingArgs};
 
 /// Arguments of `host-sim label`.
 #[derive(clap::Args, Debug)]

@@ -1,4 +1,5 @@
-//! The epssn host tool's own modules: the main job (`host-sim run`, `host-sim bundle`), the
+//! The epssn host tool's own modules: the main job (`host-sim run`, `host-sim bundle`), how a
+//! recording's frames are grouped into views (`pairing`, which `run` and `label` share), the
 //! labels of a recording from its site (`host-sim label`), the depth figures, the run as an MCAP
 //! file of ROS 2 messages (`mcap_out`) and the sweep's clouds in one frame (`sweep`). Every other
 //! subcommand lives in the host crate of its role (`epssn-aris`, `epssn-sim`, `epssn-quant`,
@@ -9,5 +10,6 @@
 pub mod figure;
 pub mod label;
 pub mod mcap_out;
+pub mod pairing;
 pub mod run;
 pub mod sweep;

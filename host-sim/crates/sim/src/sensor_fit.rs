@@ -20,8 +20,9 @@ use anyhow::{ensure, Context, Result};
 use serde::Serialize;
 
 use crate::render::{form_image, trace_view, SonarSimParams, TracedView};
-use crate::scene::{generate, SceneKind, Split, World};
+use crate::scene::{generate, SceneKind, Split};
 use crate::sensor_stats::{measure, measure_any, measure_recording, FrameRef, ImageStats};
+use crate::world::World;
 
 /// Speckle looks the search tries.
 pub const MAX_LOOKS: u32 = 8;

@@ -25,8 +25,9 @@ use rayon::prelude::*;
 
 use crate::groundtruth::{elevation_map, polar_image, reference_labels};
 use crate::render::{frame_header_posed, render_view, SonarSimParams};
-use crate::scene::{fix_pose, generate, Scene, SceneKind, Split, World};
+use crate::scene::{fix_pose, generate, Scene, SceneKind, Split};
 use crate::site::{Region, Site};
+use crate::world::World;
 use epssn_aris::aris::write_recording;
 
 /// Everything written for one sample.

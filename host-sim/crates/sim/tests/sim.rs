@@ -13,8 +13,9 @@ use epssn::geometry::{cartesian_to_polar, fractional_index, polar_to_cartesian, 
 use epssn_sim::dataset::{sample_dirs, Sample};
 use epssn_sim::groundtruth::{front_depth, polar_image};
 use epssn_sim::render::SonarSimParams;
-use epssn_sim::scene::{generate, SceneKind, SonarPose, Split, World};
+use epssn_sim::scene::{generate, SceneKind, SonarPose, Split};
 use epssn_sim::simulate::{run, simulate_scene, SimulateArgs};
+use epssn_sim::world::World;
 
 /// First-hit range of the ray at (azimuth, elevation) from the origin against a sphere,
 /// written out independently of the simulator.

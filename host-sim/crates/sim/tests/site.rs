@@ -8,10 +8,11 @@ use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS};
 use epssn_sim::groundtruth::front_depth;
 use epssn_sim::mesh::{to_bytes, MeshFormat};
 use epssn_sim::render::SonarSimParams;
-use epssn_sim::scene::{generate, Object, Scene, SceneKind, Split, World};
+use epssn_sim::scene::{generate, Object, Scene, SceneKind, Split};
 use epssn_sim::simulate::{run, simulate_scene, simulate_site_scene, JitterAxes, SimulateArgs};
 use epssn_sim::site::{Region, Site};
 use epssn_sim::tessellate::scene_mesh;
+use epssn_sim::world::World;
 
 /// Writes `scene`'s mesh as `name` in `dir` and loads it as a site.
 fn export(scene: &Scene, dir: &Path, name: &str) -> (PathBuf, Site) {
