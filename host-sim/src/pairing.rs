@@ -20,28 +20,24 @@ use epssn_reference::weights;
 
 /// What decides the depth maps a recording gives: `run` and `label` share it, so `label`
 /// labels exactly the reference views `run` forms.
-#[derive(clap::Args, Debug, Clone, Default)]
-pub struct PairingArgs {
+#[derive(Debug, Clone, Default)]
+pub struct PairingOptions {
     /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
-    #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Views per depth map (2 or 3); default: the count the weights were trained for (the
     /// blob's `views`, else the spec's).
-    #[arg(long)]
     pub views: Option<usize>,
     /// Pair frames by index instead of by roll, `REF:SRC` (repeatable), for recordings
     /// without rotator roll. The roll between them is assumed to be the baseline.
-    #[arg(long = "pair", value_parser = parse_pair)]
     pub pairs: Vec<(usize, usize)>,
     /// Pings averaged per view (`epssn::ping_average`): each run of this many consecutive
     /// frames at one roll (within the pair tolerance) becomes one frame, named by its first;
     /// frames left over are skipped with a warning. Default: the pings per view the weights
     /// were trained on (their manifest's `speckle_looks`), else 1.
-    #[arg(long)]
     pub pings_per_view: Option<u32>,
 }
 
-impl PairingArgs {
+impl PairingOptions {
     /// The weights folder: given, else the firmware's.
     pub fn weights_dir(&self) -> Result<PathBuf> {
         match &self.weights {
@@ -49,18 +45,6 @@ impl PairingArgs {
             None => weights::firmware_weights_dir(),
         }
     }
-}
-
-fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
-    let (a, b) = s.split_once(':').ok_or("expected REF:SRC")?;
-    Ok((
-        a.trim()
-            .parse()
-            .map_err(|_| format!("bad frame index {a}"))?,
-        b.trim()
-            .parse()
-            .map_err(|_| format!("bad frame index {b}"))?,
-    ))
 }
 
 /// One candidate pair (frames whose rotator rolls pair) and the pose gate's verdict on it
@@ -228,7 +212,7 @@ pub struct Pairing {
 /// `model_views`, the blob's), pings per view, pairing by roll and the pose gate, or the
 /// `--pair` pairs. Fails when no group is formed.
 pub fn pair_recording(
-    args: &PairingArgs,
+    args: &PairingOptions,
     model_views: usize,
     weights_dir: &Path,
     recording: &Path,
@@ -301,7 +285,7 @@ pub(crate) struct FrameViews {
 
 impl FrameViews {
     fn of(
-        args: &PairingArgs,
+        args: &PairingOptions,
         reader: &ArisReader,
         weights_dir: &Path,
         recording: &Path,
@@ -401,7 +385,7 @@ fn pair_by_pose(
 
 /// The pairs given with `--pair`, checked against the recording.
 fn given_pairs(
-    args: &PairingArgs,
+    args: &PairingOptions,
     reader: &ArisReader,
     views: usize,
     warnings: &mut Vec<String>,

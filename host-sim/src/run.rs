@@ -20,52 +20,44 @@ use serde::Serialize;
 use crate::figure;
 use crate::mcap_out::{self, PairMessages, RunMessages};
 use crate::pairing::{
-    frame_attitude, model_of, pair_recording, CandidateReport, FrameViews, Pairing, PairingArgs,
+    frame_attitude, model_of, pair_recording, CandidateReport, FrameViews, Pairing, PairingOptions,
 };
 use crate::sweep::{self, CloudFrame};
 use epssn_aris::aris::ArisReader;
 use epssn_aris::{npy, polar};
+use epssn_mcap::msgs::SonarPoint;
 use epssn_reference::{floatref, reference_model, weights};
 use epssn_sim::dataset::demo_dir;
 use epssn_sim::metrics::{self, Accuracy, Metrics};
 use epssn_sim::poses::SitePose;
 use epssn_sim::preview;
 
-/// Arguments of `host-sim run`.
-#[derive(clap::Args, Debug)]
-pub struct RunArgs {
+/// Options of `host-sim run`.
+#[derive(Debug)]
+pub struct RunOptions {
     /// ARIS recording (default: the bundled simulated demo, `data/demo/recording.aris`).
-    #[arg(long)]
     pub recording: Option<PathBuf>,
     /// Ground-truth folder with `depth_<frame>.npy` and `mask_<frame>.npy` per reference
     /// frame (default: `gt/` beside the bundled demo recording; `gt-<spec>/` for another spec).
-    #[arg(long)]
     pub gt: Option<PathBuf>,
     /// Weights, views and how frames are grouped.
-    #[command(flatten)]
-    pub pairing: PairingArgs,
+    pub pairing: PairingOptions,
     /// Dynamic range of the recording's 0–255 counts, dB, for averaging pings in intensity
     /// (80 for ARIS files, docs/ARIS.md; 70 for the simulator's default).
-    #[arg(long, default_value_t = 80.0)]
     pub ping_dynamic_range_db: f32,
     /// Output folder for PNGs, PLYs and `summary.json`.
-    #[arg(long, default_value = "out/run")]
     pub out: PathBuf,
     /// Print the summary as JSON.
-    #[arg(long)]
     pub json: bool,
     /// Also write the run as ROS 2 messages (CDR) in this MCAP file: images, depth maps,
     /// point clouds, the sonar's transforms, the pair checks and the summary (docs/MCAP.md).
-    #[arg(long)]
     pub mcap: Option<PathBuf>,
     /// Frame of the clouds: `sonar`, each pair in its reference view's sonar frame; `world`
     /// also merges every pair by its reference frame's attitude (and `--poses` positions) into
     /// `world.ply` and, with `--mcap`, one merged cloud.
-    #[arg(long, value_enum, default_value_t = CloudFrame::Sonar)]
     pub frame: CloudFrame,
     /// Each frame's position in the site (`frame,x_m,y_m,z_m,roll_deg,pitch_deg,yaw_deg`, as
     /// `bundle` writes and `label` reads): moves the world-frame clouds and the transforms.
-    #[arg(long)]
     pub poses: Option<PathBuf>,
 }
 
@@ -137,7 +129,7 @@ fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
 }
 
 /// Runs `host-sim run`.
-pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
+pub fn run(args: &RunOptions, out: &mut impl Write) -> Result<()> {
     let weights_dir = args.pairing.weights_dir()?;
     let bundle = weights::load(&weights_dir)?;
     let model = model_of(&bundle.blob, &weights_dir)?;
@@ -145,55 +137,29 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         .recording
         .clone()
         .unwrap_or_else(|| demo_dir().join("recording.aris"));
-    let gt_dir = args.gt.clone().or_else(|| {
-        args.recording
-            .is_none()
-            // The demo's ground truth on the build's output grid (`gt/` for EPSSN-S).
-            .then(|| {
-                demo_dir().join(epssn_spec::load::per_spec_name(
-                    "gt",
-                    epssn::config::SPEC_FILE_NAME,
-                ))
-            })
-    });
     let Pairing {
         reader,
         frames,
         groups,
         candidates,
-        warnings,
+        mut warnings,
     } = pair_recording(&args.pairing, model.views(), &weights_dir, &recording)?;
     std::fs::create_dir_all(&args.out)?;
     let images = polar_images(args, &reader, &frames, &groups)?;
-
     let poses = match &args.poses {
         Some(p) => Some(epssn_sim::poses::load(p, reader.frame_count())?),
         None => None,
     };
-
-    // The library computes each group's features and depth in one call and hands the
-    // features back for the bit-exactness check.
-    let mut ws = Box::new(Workspace::new());
-    let mut details = Vec::new();
-    let mut computed = Vec::new();
-    for group in &groups {
-        let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
-        let maps = depth_maps(&model, &bundle, &views, &mut ws)
-            .with_context(|| format!("depth of frames {group:?}"))?;
-        let gt = match &gt_dir {
-            Some(dir) => load_gt(dir, group[0])?,
-            None => None,
-        };
-        let name = format!("frame{:04}", group[0]);
-        write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
-        details.push(pair_report(group, &frames, &maps, gt.as_ref())?);
-        computed.push((maps, gt));
-    }
-    let mut warnings = warnings;
-    let clouds: Vec<(usize, Vec<epssn_mcap::msgs::SonarPoint>)> = groups
+    let computed = compute_groups(args, &model, &bundle, &groups, &images)?;
+    let details = computed
+        .iter()
+        .zip(&groups)
+        .map(|(c, g)| pair_report(g, &frames, &c.maps, c.gt.as_ref()))
+        .collect::<Result<Vec<_>>>()?;
+    let clouds: Vec<(usize, Vec<SonarPoint>)> = groups
         .iter()
         .zip(&computed)
-        .map(|(g, (maps, _))| Ok((g[0], mcap_out::sonar_points(&maps.int8, &images[&g[0]])?)))
+        .map(|(g, c)| Ok((g[0], mcap_out::sonar_points(&c.maps.int8, &images[&g[0]])?)))
         .collect::<Result<_>>()?;
     let merged = match args.frame {
         CloudFrame::Sonar => None,
@@ -205,65 +171,25 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             &mut warnings,
         )?,
     };
-    let summary = Summary {
-        recording: recording.display().to_string(),
-        weights: weights_dir.display().to_string(),
-        pairs: details.len(),
-        pings_per_view: frames.pings_per_view,
-        float: Accuracy::of(
-            &details
-                .iter()
-                .filter_map(|d| d.float.clone())
-                .collect::<Vec<_>>(),
-        ),
-        int8: Accuracy::of(
-            &details
-                .iter()
-                .filter_map(|d| d.int8.clone())
-                .collect::<Vec<_>>(),
-        ),
-        int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
-            / details.len() as f64,
-        bit_exact: details.iter().all(|d| d.bit_exact),
+    let summary = Summary::of(
+        &recording,
+        &weights_dir,
+        &frames,
         details,
         candidates,
-        residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
         warnings,
-    };
+    );
     let summary_json = serde_json::to_string_pretty(&summary)?;
     std::fs::write(args.out.join("summary.json"), &summary_json)?;
     if let Some(path) = &args.mcap {
-        let pairs: Vec<PairMessages> = groups
-            .iter()
-            .zip(&computed)
-            .map(|(g, (maps, gt))| PairMessages {
-                frames: g,
-                int8: &maps.int8,
-                float: &maps.float,
-                truth: gt.as_ref().map(|(d, _)| d.as_slice()),
-                polar: &images[&g[0]],
-            })
-            .collect();
-        // Every frame's attitude, bursts' other pings included: the transforms show the
-        // sonar's motion, not only the views the pairing kept.
-        let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
-            .map(|i| frame_attitude(&reader, i))
-            .collect();
-        let positions: BTreeMap<usize, [f64; 3]> = poses
-            .iter()
-            .flatten()
-            .map(|(&f, p)| (f, p.position_m))
-            .collect();
-        let run = RunMessages {
-            candidates: &summary.candidates,
-            pairs: &pairs,
-            attitudes: &attitudes,
-            positions: &positions,
-            sweep: merged.as_deref(),
-            summary_json: &summary_json,
+        let outputs = RunOutputs {
+            groups: &groups,
+            computed: &computed,
+            images: &images,
+            poses: poses.as_ref(),
+            merged: merged.as_deref(),
         };
-        mcap_out::write(path, &reader, &run)
-            .with_context(|| format!("writing {}", path.display()))?;
+        write_mcap(path, &reader, &summary, &summary_json, &outputs)?;
     }
     if args.json {
         writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
@@ -286,15 +212,144 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     Ok(())
 }
 
+/// The ground truth `run` reads: `--gt`, else, for the bundled demo, its folder for the build's
+/// output grid (`gt/` for EPSSN-S); none for another recording without `--gt`.
+fn gt_dir(args: &RunOptions) -> Option<PathBuf> {
+    args.gt.clone().or_else(|| {
+        args.recording.is_none().then(|| {
+            demo_dir().join(epssn_spec::load::per_spec_name(
+                "gt",
+                epssn::config::SPEC_FILE_NAME,
+            ))
+        })
+    })
+}
+
+/// One group's depth maps and its ground truth, if any.
+struct Computed {
+    maps: DepthMaps,
+    gt: Option<(Vec<f32>, Vec<bool>)>,
+}
+
+/// Every group's depth maps, each pair's figure and clouds written to `args.out`. The library
+/// computes each group's features and depth in one call and hands the features back for the
+/// bit-exactness check.
+fn compute_groups(
+    args: &RunOptions,
+    model: &Model,
+    bundle: &weights::Bundle,
+    groups: &[Vec<usize>],
+    images: &BTreeMap<usize, Vec<u8>>,
+) -> Result<Vec<Computed>> {
+    let gt_dir = gt_dir(args);
+    let mut ws = Box::new(Workspace::new());
+    let mut computed = Vec::new();
+    for group in groups {
+        let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
+        let maps = depth_maps(model, bundle, &views, &mut ws)
+            .with_context(|| format!("depth of frames {group:?}"))?;
+        let gt = match &gt_dir {
+            Some(dir) => load_gt(dir, group[0])?,
+            None => None,
+        };
+        let name = format!("frame{:04}", group[0]);
+        write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
+        computed.push(Computed { maps, gt });
+    }
+    Ok(computed)
+}
+
+impl Summary {
+    /// The run's summary from its pairs' reports.
+    fn of(
+        recording: &Path,
+        weights_dir: &Path,
+        frames: &FrameViews,
+        details: Vec<PairReport>,
+        candidates: Vec<CandidateReport>,
+        warnings: Vec<String>,
+    ) -> Self {
+        let float: Vec<Metrics> = details.iter().filter_map(|d| d.float.clone()).collect();
+        let int8: Vec<Metrics> = details.iter().filter_map(|d| d.int8.clone()).collect();
+        Summary {
+            recording: recording.display().to_string(),
+            weights: weights_dir.display().to_string(),
+            pairs: details.len(),
+            pings_per_view: frames.pings_per_view,
+            float: Accuracy::of(&float),
+            int8: Accuracy::of(&int8),
+            int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
+                / details.len() as f64,
+            bit_exact: details.iter().all(|d| d.bit_exact),
+            details,
+            candidates,
+            residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
+            warnings,
+        }
+    }
+}
+
+/// What the run computed, as `--mcap` writes it.
+struct RunOutputs<'a> {
+    groups: &'a [Vec<usize>],
+    computed: &'a [Computed],
+    images: &'a BTreeMap<usize, Vec<u8>>,
+    poses: Option<&'a BTreeMap<usize, SitePose>>,
+    merged: Option<&'a [SonarPoint]>,
+}
+
+/// `--mcap`: the run as ROS 2 messages.
+fn write_mcap(
+    path: &Path,
+    reader: &ArisReader,
+    summary: &Summary,
+    summary_json: &str,
+    o: &RunOutputs,
+) -> Result<()> {
+    let pairs: Vec<PairMessages> = o
+        .groups
+        .iter()
+        .zip(o.computed)
+        .map(|(g, c)| PairMessages {
+            frames: g,
+            int8: &c.maps.int8,
+            float: &c.maps.float,
+            truth: c.gt.as_ref().map(|(d, _)| d.as_slice()),
+            polar: &o.images[&g[0]],
+        })
+        .collect();
+    // Every frame's attitude, bursts' other pings included: the transforms show the
+    // sonar's motion, not only the views the pairing kept.
+    let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+        .map(|i| frame_attitude(reader, i))
+        .collect();
+    let positions: BTreeMap<usize, [f64; 3]> = o
+        .poses
+        .iter()
+        .copied()
+        .flatten()
+        .map(|(&f, p)| (f, p.position_m))
+        .collect();
+    let run = RunMessages {
+        candidates: &summary.candidates,
+        pairs: &pairs,
+        attitudes: &attitudes,
+        positions: &positions,
+        sweep: o.merged,
+        summary_json,
+    };
+    mcap_out::write(path, reader, &run).with_context(|| format!("writing {}", path.display()))
+}
+
 /// `--frame world`: every placed pair's int8 cloud merged into `dir/world.ply`; `None`, with
 /// the reason among the warnings, when no pair can be placed. Pairs that cannot are named.
 fn world_cloud(
     dir: &Path,
-    clouds: &[(usize, Vec<epssn_mcap::msgs::SonarPoint>)],
+    clouds: &[(usize, Vec<SonarPoint>)],
     attitudes: &[Option<Attitude>],
     poses: Option<&BTreeMap<usize, SitePose>>,
     warnings: &mut Vec<String>,
-) -> Result<Option<Vec<epssn_mcap::msgs::SonarPoint>>> {
+) -> Result<Option<Vec<SonarPoint>>> {
     let refs: Vec<usize> = clouds.iter().map(|(f, _)| *f).collect();
     let placement = sweep::place(&refs, attitudes, poses);
     warnings.extend(placement.warnings.iter().cloned());
@@ -330,7 +385,7 @@ fn world_cloud(
 
 /// The polar image of every frame the groups use, each computed once (its pings averaged).
 fn polar_images(
-    args: &RunArgs,
+    args: &RunOptions,
     reader: &ArisReader,
     frames: &FrameViews,
     groups: &[Vec<usize>],
@@ -534,14 +589,12 @@ fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -
     Ok(())
 }
 
-/// Arguments of `host-sim bundle`.
-#[derive(clap::Args, Debug)]
-pub struct BundleArgs {
+/// Options of `host-sim bundle`.
+#[derive(Debug)]
+pub struct BundleOptions {
     /// Simulated sample folders (`DIR/<split>/<index>/`), in the order to record them.
-    #[arg(required = true)]
     pub samples: Vec<PathBuf>,
     /// Output folder: `recording.aris`, `gt/` and, for samples of one site, `poses.csv`.
-    #[arg(long)]
     pub out: PathBuf,
 }
 
@@ -568,7 +621,7 @@ fn common_site(scenes: &[&epssn_sim::scene::Scene]) -> Option<(String, String)> 
 /// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`. When every sample was
 /// drawn in one site, `poses.csv` gives each frame's pose in the site frame (`label` reads it);
 /// procedural samples each have a world of their own, so no one file of poses describes them.
-pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
+pub fn bundle(args: &BundleOptions, out: &mut impl Write) -> Result<()> {
     let gt = args.out.join("gt");
     std::fs::create_dir_all(&gt)?;
     let mut frames: Vec<(epssn_aris::aris::FrameHeader, Vec<u8>)> = Vec::new();

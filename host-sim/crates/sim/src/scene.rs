@@ -19,7 +19,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 /// The three scene families of the paper.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SceneKind {
     /// One sphere at a random position inside the view, nothing else.
@@ -30,7 +30,6 @@ pub enum SceneKind {
     Artificial,
     /// A fixed site read from a mesh file (`simulate --site`), seen from poses drawn throughout
     /// it; not a value of `--scene`.
-    #[value(skip)]
     Site,
 }
 
@@ -47,7 +46,7 @@ impl SceneKind {
 }
 
 /// Dataset split.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Split {
     /// Training split.
