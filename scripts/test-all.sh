@@ -113,7 +113,7 @@ step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance test
 # firmware/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
 # (the SIL runs through epssn-sil, the sil crate's own binary).
 p_start=$SECONDS
-EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil \
+EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil-core \
     --target-dir target/epssn-p
 # The kernels' whole-network checks at EPSSN-P's shapes (the random-shape ones are EPSSN-S's).
 EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-reference --test bitexact_kernels network \

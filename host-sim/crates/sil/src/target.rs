@@ -8,7 +8,7 @@ use std::process::Command;
 use epssn_spec::load::per_spec_file;
 
 /// A core and its board under QEMU.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Target {
     /// Cortex-M7 on QEMU `mps2-an500` (`firmware/`).
