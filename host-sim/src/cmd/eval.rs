@@ -32,6 +32,11 @@ pub struct EvalArgs {
     /// empty near rays, pooled over the maps (`epssn_sim::metrics::ErrorBreakdown`).
     #[arg(long)]
     pub breakdown: bool,
+    /// Also write each sample's float depth map (the f64 reference network's) to
+    /// `<DIR>/<sample>/depth_float.npy`: f32 metres, elevation rows × azimuth columns, the
+    /// layout `epssn-train predict` writes, so the two float networks can be compared.
+    #[arg(long, value_name = "DIR")]
+    pub save_depth: Option<PathBuf>,
 }
 
 impl From<EvalArgs> for EvalOptions {
@@ -44,6 +49,7 @@ impl From<EvalArgs> for EvalOptions {
             limit: a.limit,
             int8: a.int8,
             breakdown: a.breakdown,
+            save_depth: a.save_depth,
         }
     }
 }

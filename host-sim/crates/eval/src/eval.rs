@@ -34,7 +34,6 @@ pub struct EvalOptions {
     /// Also write each sample's float depth map (the f64 reference network's) to
     /// `<DIR>/<sample>/depth_float.npy`: f32 metres, elevation rows × azimuth columns, the
     /// layout `epssn-train predict` writes, so the two float networks can be compared.
-    #[arg(long, value_name = "DIR")]
     pub save_depth: Option<PathBuf>,
 }
 
