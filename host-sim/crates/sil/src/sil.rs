@@ -43,7 +43,7 @@ pub struct SilOptions {
     pub json: bool,
     /// The firmware ELF (default: build the target's firmware crate in release and use it).
     pub firmware: Option<PathBuf>,
-    /// The core to run on: `m7` (QEMU mps2-an500, `firmware/`) or `m55` (QEMU mps3-an547,
+    /// The core to run on: `m7` (QEMU mps2-an500, `boards/mps2-an500`) or `m55` (QEMU mps3-an547,
     /// `boards/mps3-an547`, budgets `weights/budgets-m55.json`).
     pub target: Target,
     /// Stream at most this many frames.
@@ -186,8 +186,8 @@ fn firmware_blob() -> Result<Vec<u8>> {
 
 /// Builds the firmware (release; cargo decides whether anything changed) for the spec this
 /// host build was generated from, and returns the ELF path. The target directory is
-/// `epssn_spec::load::per_spec_dir` of `firmware/target` (EPSSN-S in `firmware/target`, any
-/// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
+/// `epssn_spec::load::per_spec_dir` of `boards/mps2-an500/target` (EPSSN-S there, any other
+/// configuration in `boards/mps2-an500/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
     build_firmware_with(Target::M7, None)
@@ -500,8 +500,8 @@ fn soak(
 fn open_device(args: &SilOptions, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
     if args.reset_faults > 0 && args.target != Target::M7 {
         bail!(
-            "--reset-faults needs the Cortex-M7 firmware (firmware/): the {:?} board has no \
-             watchdog or fault record yet",
+            "--reset-faults needs the Cortex-M7 firmware (boards/mps2-an500): the {:?} board has \
+             no watchdog or fault record yet",
             args.target
         );
     }

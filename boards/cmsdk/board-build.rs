@@ -1,6 +1,8 @@
-//! Build-time work of the Cortex-M55 firmware: puts this board's `memory/memory.x` (the
-//! MPS3-AN547 memory map; `memory/memory-<spec stem>.x` for another configuration) on the linker search path.
-//! The weight blob and the golden vectors come from the shared self-test crate.
+//! The build script of both QEMU boards (their Cargo.toml: `build = "../cmsdk/board-build.rs"`):
+//! puts the board's `memory/memory.x` (`memory/memory-<spec stem>.x` for another
+//! configuration) on the linker search path, and `defmt.x` with the `defmt` feature. The weight
+//! blob and the golden vectors of the boot self-test are embedded by the shared self-test crate
+//! (`../selftest/build.rs`).
 
 use epssn_spec::load::{build_spec_path, per_spec_file};
 use std::path::PathBuf;
@@ -8,6 +10,8 @@ use std::path::PathBuf;
 fn main() {
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap());
+    // The memory map of the build's configuration: `memory.x` for EPSSN-S, e.g.
+    // `memory-epssn-p.x` for the paper's size (`EPSSN_SPEC`).
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
     let spec = build_spec_path(&manifest.join("../.."));
     let spec_file = spec
@@ -22,4 +26,8 @@ fn main() {
         .unwrap_or_else(|e| panic!("{}: {e}", memory.display()));
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed={}", memory.display());
+    if std::env::var_os("CARGO_FEATURE_DEFMT").is_some() {
+        // defmt's interned strings need its linker script.
+        println!("cargo:rustc-link-arg=-Tdefmt.x");
+    }
 }
