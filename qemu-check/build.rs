@@ -1,4 +1,4 @@
-//! Links against the board's memory map (`boards/mps2-an500/memory/memory.x`; for the
+//! Links against the board's memory map (the repository's `memory.x`; for the
 //! Cortex-M55, `boards/mps3-an547/memory/memory.x`) with the RAM region widened to the board's
 //! data memory (4 MiB of SRAM on the MPS2-AN500, 512 KiB of DTCM on the MPS3-AN547): this
 //! harness keeps three whole activations of up to 128 KiB on its stack, which the firmware's
@@ -12,7 +12,7 @@ fn main() {
     let (map, ram) = if m55 {
         ("../boards/mps3-an547/memory/memory.x", "512K")
     } else {
-        ("../boards/mps2-an500/memory/memory.x", "4M")
+        ("../memory.x", "4M")
     };
     let root = std::fs::read_to_string(map).unwrap();
     let widened: String = root

@@ -1,6 +1,7 @@
 //! The build script of both QEMU boards (their Cargo.toml: `build = "../cmsdk/board-build.rs"`):
-//! puts the board's `memory/memory.x` (`memory/memory-<spec stem>.x` for another
-//! configuration) on the linker search path, and `defmt.x` with the `defmt` feature. The weight
+//! puts the board's memory map on the linker search path: `memory/memory.x` beside its
+//! Cargo.toml (`memory/memory-<spec stem>.x` for another configuration) or, for the Cortex-M7
+//! image, which has no `memory/`, the repository's top-level `memory.x`, the product's map, and `defmt.x` with the `defmt` feature. The weight
 //! blob and the golden vectors of the boot self-test are embedded by the shared self-test crate
 //! (`../selftest/build.rs`).
 
@@ -13,7 +14,8 @@ fn main() {
     // The memory map of the build's configuration: `memory.x` for EPSSN-S, e.g.
     // `memory-epssn-p.x` for the paper's size (`EPSSN_SPEC`).
     println!("cargo:rerun-if-env-changed=EPSSN_SPEC");
-    let spec = build_spec_path(&manifest.join("../.."));
+    let root = manifest.join("../..");
+    let spec = build_spec_path(&root);
     let spec_file = spec
         .file_name()
         .and_then(|n| n.to_str())
@@ -21,7 +23,9 @@ fn main() {
     // In `memory/`, not beside Cargo.toml: the linker looks for `memory.x` in its working
     // directory (the crate's) before the search path, so a file there would shadow the
     // configuration's map.
-    let memory = per_spec_file(&manifest.join("memory"), "memory", "x", spec_file);
+    let own = manifest.join("memory");
+    let dir = if own.is_dir() { own } else { root };
+    let memory = per_spec_file(&dir, "memory", "x", spec_file);
     std::fs::copy(&memory, out.join("memory.x"))
         .unwrap_or_else(|e| panic!("{}: {e}", memory.display()));
     println!("cargo:rustc-link-search={}", out.display());

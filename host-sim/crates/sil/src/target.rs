@@ -66,10 +66,14 @@ impl Target {
         per_spec_file(&weights, name, "json", epssn::config::SPEC_FILE_NAME)
     }
 
-    /// The memory map the target's firmware links with for the build's spec.
+    /// The memory map the target's firmware links with for the build's spec: the repository's
+    /// `memory.x` for the Cortex-M7 image, the board's `memory/` for the others.
     pub fn memory_x_path(self) -> PathBuf {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
-        let dir = root.join(self.crate_dir()).join("memory");
+        let dir = match self {
+            Target::M7 => root,
+            Target::M55 => root.join(self.crate_dir()).join("memory"),
+        };
         per_spec_file(&dir, "memory", "x", epssn::config::SPEC_FILE_NAME)
     }
 }
