@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .device import device_or_exit
+
 
 def tune_malloc() -> bool:
     """glibc hands every large freed tensor back to the kernel and faults it in again on the
@@ -29,26 +31,6 @@ def tune_malloc() -> bool:
         return bool(ok)
     except (OSError, AttributeError):
         return False
-
-
-def select_device(requested: str, cuda_available: bool, local_rank: int = 0) -> str:
-    """`cpu`, `cuda` (refused without a GPU) or `auto` (cuda when present). Under torchrun each
-    process takes the GPU of its local rank."""
-    if requested not in ("cpu", "cuda", "auto"):
-        raise ValueError(f"--device {requested}: cpu, cuda or auto")
-    if requested == "cpu" or (requested == "auto" and not cuda_available):
-        return "cpu"
-    if not cuda_available:
-        raise RuntimeError("--device cuda: no CUDA device is visible to PyTorch")
-    return f"cuda:{local_rank}"
-
-
-def _device(requested, cuda_available, local_rank=0):
-    """select_device, its refusal as a one-line exit."""
-    try:
-        return select_device(requested, cuda_available, local_rank)
-    except (RuntimeError, ValueError) as e:
-        raise SystemExit(f"epssn-train: {e}")
 
 
 def _model(spec_path, weights_dir=None):
@@ -95,7 +77,7 @@ def bench(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     spec = Spec(Path(args.spec))
-    dev = _device(args.device, torch.cuda.is_available())
+    dev = device_or_exit(args.device, torch.cuda.is_available())
     model = Epssn(spec, channels_last=args.channels_last)
     init_uniform(model, 1)
     model = model.to(dev).train()

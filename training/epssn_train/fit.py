@@ -17,7 +17,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from .cli import _device
+from .device import device_or_exit
 from .data import load_dir, split_dir, summary
 from .io import (SPEC_FILE, WEIGHTS_FILE, plot_curves, read_safetensors, trained_views,
                  write_loss_csv, write_safetensors)
@@ -153,7 +153,7 @@ def fit(args) -> int:
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     local = int(os.environ.get("LOCAL_RANK", "0"))
-    dev = _device(args.device, torch.cuda.is_available(), local)
+    dev = device_or_exit(args.device, torch.cuda.is_available(), local)
     if args.threads:
         torch.set_num_threads(args.threads)
     if world > 1:

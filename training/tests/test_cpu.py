@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from epssn_train.cli import select_device
+from epssn_train.device import select_device
 from epssn_train.losses import lr_at, two_hot_labels
 from epssn_train.model import Epssn, init_uniform
 from epssn_train.spec import Spec
