@@ -1,10 +1,8 @@
 //! The rules a model spec must keep for the library to be built from it (`std` feature).
 //!
 //! [`check`] is the one gate between a spec file and the generated `epssn::config`: it refuses a
-//! spec that breaks any rule with a [`SpecError`] naming the rule, and hands [`codegen`] the
+//! spec that breaks any rule with a [`SpecError`] naming the rule, and hands `codegen` the
 //! sizes, grids and warp tables it derived on the way, so generation itself cannot fail.
-//!
-//! [`codegen`]: crate::codegen
 
 use std::string::{String, ToString};
 use std::vec::Vec;
