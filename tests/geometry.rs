@@ -274,5 +274,5 @@ fn runtime_grids_equal_build_time_tables() {
 
 /// The spec the library was built from (`EPSSN_SPEC`, default `weights/epssn-s.json`).
 fn serde_json_from_spec() -> epssn::spec::ModelSpec {
-    epssn_aris::spec::built_spec().unwrap()
+    epssn_spec::load::built_spec(config::SPEC_JSON, config::SPEC_FILE_NAME).unwrap()
 }

@@ -1,10 +1,12 @@
-//! Files: the one spec loader and the one beam-table parser (`std` feature).
+//! Files: the one spec loader and the one beam-table parser (`std` feature), at build time
+//! and at run time.
 
 use std::format;
 use std::path::{Path, PathBuf};
 use std::string::String;
 use std::vec::Vec;
 
+use crate::grids::ModelGrids;
 use crate::spec::ModelSpec;
 
 /// A model spec read from its file.
@@ -37,6 +39,24 @@ pub fn load_spec(path: &Path) -> Result<LoadedSpec, String> {
     Ok(LoadedSpec {
         spec,
         hash: crate::crc32::crc32(&bytes),
+    })
+}
+
+/// The spec a library build was generated from, parsed from its text: `json` and `file_name`
+/// are the build's `epssn::config::SPEC_JSON` and `SPEC_FILE_NAME` (`weights/epssn-s.json`
+/// unless `EPSSN_SPEC` named another at build time).
+pub fn built_spec(json: &str, file_name: &str) -> Result<ModelSpec, String> {
+    parse_spec(json.as_bytes()).map_err(|e| format!("the built spec {file_name}: {e}"))
+}
+
+/// The grids of `spec` with `table`, its sonar's beam table, through the one derivation.
+pub fn spec_grids(spec: &ModelSpec, table: &BeamTable) -> Result<ModelGrids, String> {
+    ModelGrids::derive(spec, &table.centre_deg).map_err(|e| {
+        format!(
+            "model spec {} does not give valid grids with beam table {}: {e:?}",
+            spec.name.as_str(),
+            table.name
+        )
     })
 }
 

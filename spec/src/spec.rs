@@ -222,7 +222,9 @@ pub struct TrainingSpec {
 }
 
 impl LayerSpec {
-    /// Output size along each spatial axis for an input of `input` (same rank as the kernel).
+    /// Output size along each spatial axis for an input of `input` (same rank as the kernel);
+    /// saturating, so that no spec makes it overflow (the build's check refuses an activation
+    /// whose element count does not fit a `usize`).
     pub fn output_size(&self, input: &[usize]) -> Vec<usize, 3> {
         let mut out = Vec::new();
         for (axis, &n) in input.iter().enumerate() {
@@ -232,10 +234,11 @@ impl LayerSpec {
             let op = *self.output_padding.get(axis).unwrap_or(&0) as usize;
             let o = match self.kind {
                 LayerKind::Conv2d | LayerKind::Conv3d => {
-                    (n + 2 * p).saturating_sub(k) / s.max(1) + 1
+                    (n.saturating_add(2 * p).saturating_sub(k) / s.max(1)).saturating_add(1)
                 }
                 LayerKind::ConvTranspose3d => {
-                    ((n.saturating_sub(1)) * s + k + op).saturating_sub(2 * p)
+                    (n.saturating_sub(1).saturating_mul(s).saturating_add(k + op))
+                        .saturating_sub(2 * p)
                 }
             };
             let _ = out.push(o);
