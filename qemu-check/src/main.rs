@@ -371,12 +371,12 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::asm::udf()
 }
 
-/// The `epssn::dsp` inner loops (with `dsp` their SMLAD assembly, with `mve` their Helium
+/// The `epssn::arch` inner loops (with `dsp` their SMLAD assembly, with `mve` their Helium
 /// assembly) against plain loops written here, on random lengths, strides, offsets and
 /// values, every tail included (lengths not a multiple of 4, an odd last position, `n` of
 /// 2, 4 and 6 words). Returns (cases, mismatches).
 fn inner_loops(rng: &mut Rng) -> (u32, u32) {
-    use epssn::dsp::{
+    use epssn::arch::{
         dot2x2, dot2x2_row, pack, pack_rows, requant_max_row, requant_row_s8, smmulr, RowPlan,
     };
     let (mut runs, mut bad) = (0u32, 0u32);
@@ -519,7 +519,7 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         let mut dst = [0u32; 512];
         let (pa, pb) = (&bytes[..200], &bytes[250..450]);
         let (oa, ob) = if case % 3 == 0 { (128, -3) } else { (oa, ob) };
-        epssn::dsp::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
+        epssn::arch::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
         runs += 1;
         let column = (0..count).all(|j| {
             dst[j * dstride] == pack(pa[j * sstride] as i16 + oa, pb[j * sstride] as i16 + ob)
@@ -579,10 +579,10 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
             let n = -((rng.next() % 2) as i32);
             *p = [m, l, r, if r == 0 { 0 } else { 1 << (r - 1) }, n];
         }
-        let params = epssn::dsp::RowWords::new(&words[..rows]);
+        let params = epssn::arch::RowWords::new(&words[..rows]);
         let mut out = old;
         let ok = params.is_some_and(|p| {
-            epssn::dsp::requant_rows_s8(&acc, &mut out, p, (width, plane), relu, skip)
+            epssn::arch::requant_rows_s8(&acc, &mut out, p, (width, plane), relu, skip)
         });
         let expect_row = |c: usize, i: usize| -> i8 {
             let [m, l, r, h, n] = words[c];
@@ -606,7 +606,7 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
         let mut wide = words;
         wide[rows - 1][1 + (case % 2) as usize] = 32;
         runs += 1;
-        if epssn::dsp::RowWords::new(&wide[..rows]).is_some() {
+        if epssn::arch::RowWords::new(&wide[..rows]).is_some() {
             bad += 1;
         }
         // requant_max_row: the same arithmetic, the int8 (or ReLU) clamp, and the maximum.
@@ -669,7 +669,7 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
             pt = pt.wrapping_add(e.wrapping_mul(i as u32));
         }
         runs += 1;
-        if epssn::dsp::exp_sums(logits, m, &exp) != (ps, pt) {
+        if epssn::arch::exp_sums(logits, m, &exp) != (ps, pt) {
             bad += 1;
         }
     }
@@ -681,8 +681,8 @@ fn inner_loops(rng: &mut Rng) -> (u32, u32) {
 /// random rows (some the zero row without offset), lengths a multiple of 4, line widths and
 /// fills shorter than the capacity; a row shorter than the fill's length is refused.
 fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::dsp::pack_rows;
-    use epssn::dsp::{pack_line_quads, LineRows};
+    use epssn::arch::pack_rows;
+    use epssn::arch::{pack_line_quads, LineRows};
     static ZEROS: [i8; 64] = [0; 64];
     let len = 4 * (1 + (rng.next() % 12) as usize);
     let words = 1 + (rng.next() % 16) as usize;
@@ -738,8 +738,8 @@ fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
 /// last channel's row leaves the input, or an odd channel count, is refused.
 #[cfg(feature = "mve")]
 fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::dsp::pack_rows;
-    use epssn::mve::fill_channel_pairs;
+    use epssn::arch::pack_rows;
+    use epssn::arch::fill_channel_pairs;
     static ZEROS: [i8; 64] = [0; 64];
     let need = 4 * (1 + (rng.next() % 12) as usize);
     let taps = 1 + (rng.next() % 9) as usize;
@@ -822,7 +822,7 @@ fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
 /// past the input, a column of too few entries or a destination one byte short is refused.
 #[cfg(feature = "mve")]
 fn fill_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::mve::fill_bytes;
+    use epssn::arch::fill_bytes;
     let len = 1 + (rng.next() % 40) as usize;
     let taps = 1 + (rng.next() % 9) as usize;
     let channels = 1 + (rng.next() % 8) as usize;
@@ -902,7 +902,7 @@ fn fill_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
 /// refused.
 #[cfg(feature = "mve")]
 fn pair_rows_s8_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::mve::PairRowsS8;
+    use epssn::arch::PairRowsS8;
     let n = 1 + (rng.next() % 80) as usize;
     let pairs = 1 + (rng.next() % 6) as usize;
     let step = 1 + (rng.next() % 24) as usize;
@@ -995,8 +995,8 @@ fn bytemuck_bytes(b: &[i8; 512]) -> [u8; 512] {
 /// rows) through `pack_line_quads`, chunk by chunk, against `pack_rows` on the rows the
 /// definition names; a tap whose last channel's row leaves the input is refused.
 fn channel_taps_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::dsp::pack_rows;
-    use epssn::dsp::{pack_line_quads, ChannelTaps, LineRows};
+    use epssn::arch::pack_rows;
+    use epssn::arch::{pack_line_quads, ChannelTaps, LineRows};
     static ZEROS: [i8; 16] = [0; 16];
     let len = 4 * (1 + (rng.next() % 4) as usize);
     let taps = 1 + (rng.next() % 9) as usize;
@@ -1091,10 +1091,10 @@ fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512], lanes: usize) -> bool {
     let old = out;
     let cols = (width, col);
     let took = if lanes == 8 {
-        epssn::dsp::table_columns8(&mut out[..n], reference, src, cols, taps, &table, sum)
+        epssn::arch::table_columns8(&mut out[..n], reference, src, cols, taps, &table, sum)
     } else {
         let four = [taps[0], taps[1], taps[2], taps[3]];
-        epssn::dsp::table_columns4(&mut out[..n], reference, src, cols, four, &table, sum)
+        epssn::arch::table_columns4(&mut out[..n], reference, src, cols, four, &table, sum)
     };
     if took != cfg!(feature = "mve") {
         return false;
