@@ -738,8 +738,8 @@ fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
 /// last channel's row leaves the input, or an odd channel count, is refused.
 #[cfg(feature = "mve")]
 fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::arch::pack_rows;
     use epssn::arch::fill_channel_pairs;
+    use epssn::arch::pack_rows;
     static ZEROS: [i8; 64] = [0; 64];
     let need = 4 * (1 + (rng.next() % 12) as usize);
     let taps = 1 + (rng.next() % 9) as usize;

@@ -807,13 +807,6 @@ impl PairRows {
         bias: [i32; 2],
         (acc0, acc1): (&mut [i32], &mut [i32]),
     ) -> bool {
-        let PairRows {
-            step,
-            n,
-            pairs,
-            astep,
-            ..
-        } = *self;
         if x.len() < self.x_len
             || w.len() < self.w_len
             || acc0.len() < self.acc_len
@@ -834,16 +827,53 @@ impl PairRows {
             }
             return true;
         }
+        // SAFETY: the slices are at least as long as `new` computed (checked above).
+        #[allow(unsafe_code)]
+        unsafe {
+            self.pairs_on_stack(
+                x.as_ptr(),
+                w.as_ptr(),
+                bias,
+                (acc0.as_mut_ptr(), acc1.as_mut_ptr()),
+            );
+        }
+        true
+    }
+
+    /// The pair loop of [`PairRows::run`] for the shapes whose state does not fit the
+    /// registers (`astep` other than 1 or 2, or `n ≡ 2 mod 4`): its state read back from the
+    /// stack after each pair, the last two words of `n ≡ 2 mod 4` by `SMLAD`s.
+    ///
+    /// # Safety
+    ///
+    /// `x` readable for `x_len` words, `w` for `w_len` words, both accumulator rows writable
+    /// for `acc_len` words (in the caller's allocations).
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn pairs_on_stack(
+        &self,
+        x: *const u32,
+        w: *const u32,
+        bias: [i32; 2],
+        (acc0, acc1): (*mut i32, *mut i32),
+    ) {
+        let PairRows {
+            step,
+            n,
+            pairs,
+            astep,
+            ..
+        } = *self;
         // The pair loop's state, read back after each pair: accumulator pointers, accumulator
         // step (bytes), biases, weights, the advance from one pair's end to the next pair's
         // start (bytes), the inner loop's count, pairs left.
         let mut st = [
-            acc0.as_mut_ptr() as u32,
-            acc1.as_mut_ptr() as u32,
+            acc0 as u32,
+            acc1 as u32,
             (astep * 4) as u32,
             bias[0] as u32,
             bias[1] as u32,
-            w.as_ptr() as u32,
+            w as u32,
             (2 * step * 4).wrapping_sub(n * 4) as u32,
             (n / 4) as u32,
             pairs as u32,
@@ -887,9 +917,9 @@ impl PairRows {
                     "str   {t}, [{st}, #32]",
                     "bne   2b",
                     st = in(reg) st.as_mut_ptr(),
-                    x0 = inout(reg) x.as_ptr() => _,
-                    x1 = inout(reg) x.as_ptr().add(step) => _,
-                    w = inout(reg) w.as_ptr() => _,
+                    x0 = inout(reg) x => _,
+                    x1 = inout(reg) x.add(step) => _,
+                    w = inout(reg) w => _,
                     t = out(reg) _,
                     u = out(reg) _,
                     v = out(reg) _,
@@ -904,7 +934,7 @@ impl PairRows {
                 )
             };
         }
-        // SAFETY: pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
+        // SAFETY (the caller's conditions): pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
         // most at last·step + n ≤ x.len(), and w[..2n] (the lengths `new` computed, checked
         // above); n / 4 ≥ 1, so the inner
         // `DLS`/`LE` loop runs exactly n / 4 times, and with the tail (n mod 4 = 2) leaves both
@@ -937,7 +967,6 @@ impl PairRows {
                 );
             }
         }
-        true
     }
 }
 
@@ -1329,19 +1358,13 @@ pub fn fill_bytes(
     (channels, cs): (usize, usize),
     pad: &[i8],
 ) -> bool {
-    let rows_fit = rows_within(input.len(), at, (channels, cs), len);
-    let entries = at.len().checked_mul(channels);
-    let dst_fits = columns_within(dst.len(), len, vp, entries);
-    if channels == 0
-        || len == 0
-        || len > 256
-        || pad.len() < len
-        || entries.is_none_or(|n| n > vp)
-        || vp > 4096
-        || !rows_fit
-        || !dst_fits
-        || cs > i32::MAX as usize / 2
-    {
+    if !fill_bytes_fits(
+        dst.len(),
+        (vp, len),
+        (input.len(), at),
+        (channels, cs),
+        pad.len(),
+    ) {
         return false;
     }
     let passes = 8 * len.div_ceil(8) as i32;
@@ -1442,6 +1465,28 @@ pub fn fill_bytes(
         }
     }
     true
+}
+
+/// The checks of [`fill_bytes`]: 1 to 256 columns, a pad row as long, every tap's rows within
+/// the input, `at.len()·channels ≤ vp ≤ 4096` entries and every column's within the line.
+#[inline(always)]
+fn fill_bytes_fits(
+    dst_len: usize,
+    (vp, len): (usize, usize),
+    (input_len, at): (usize, &[usize]),
+    (channels, cs): (usize, usize),
+    pad_len: usize,
+) -> bool {
+    let entries = at.len().checked_mul(channels);
+    channels > 0
+        && len > 0
+        && len <= 256
+        && pad_len >= len
+        && entries.is_some_and(|n| n <= vp)
+        && vp <= 4096
+        && rows_within(input_len, at, (channels, cs), len)
+        && columns_within(dst_len, len, vp, entries)
+        && cs <= i32::MAX as usize / 2
 }
 
 /// The int8 twin of [`PairRows`] (`kernels::line::conv_s8`): pairs of positions `step`

@@ -42,6 +42,7 @@
 //! imports from them.
 
 use super::{finish, tap_range, ConvParams, ConvShape, Skip};
+use crate::arch::RowPlan;
 use crate::config::{LayerKind, LayerShape};
 use crate::requant::{Apply, Requant};
 
@@ -966,14 +967,11 @@ pub(crate) fn conv<R: Apply>(
     output: &mut [i8],
     scratch: &mut LineScratch,
 ) {
-    let [id, ih, iw] = shape.in_size;
+    let [_, _, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
     let [kd, kh, kw] = shape.kernel;
-    let [sd, sh, sw] = shape.stride;
-    let [pd, ph, pw] = shape.padding;
-    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
-    let _ = (id, ih, sd, sh, pd, ph);
+    let [_, _, sw] = shape.stride;
+    let [_, _, pw] = shape.padding;
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let v_len = ic * kd * kh;
     let vp = up4(v_len);
@@ -1042,29 +1040,7 @@ pub(crate) fn conv<R: Apply>(
                     LineTaps::forward(shape, z, y),
                 );
                 #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
-                {
-                    // v = (i, kz, ky), counted up without divisions.
-                    let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
-                    fill(line, vp, cols, span, input, off, || {
-                        let (vi, ii, zi, yi) = (v, i, kz, ky);
-                        v += 1;
-                        ky += 1;
-                        if ky == kh {
-                            ky = 0;
-                            kz += 1;
-                            if kz == kd {
-                                kz = 0;
-                                i += 1;
-                            }
-                        }
-                        if vi >= v_len {
-                            return None;
-                        }
-                        let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
-                        let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
-                        Some(((ii * id + iz) * ih + iy) * iw)
-                    });
-                }
+                fill_forward(line, (vp, cols), span, input, off, shape, (z, y));
                 row(
                     line,
                     rin,
@@ -1086,6 +1062,84 @@ pub(crate) fn conv<R: Apply>(
         }
         o0 += g;
     }
+}
+
+/// The portable fill of output row `(z, y)`'s line of a forward convolution ([`conv`]):
+/// entry `v = (i, kz, ky)`, counted up without divisions; taps outside the input read zeros.
+#[cfg(not(all(feature = "dsp", target_arch = "arm")))]
+fn fill_forward(
+    line: &mut [u32],
+    (vp, cols): (usize, usize),
+    span: (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    shape: &ConvShape,
+    (z, y): (usize, usize),
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [kd, kh, _] = shape.kernel;
+    let [sd, sh, _] = shape.stride;
+    let [pd, ph, _] = shape.padding;
+    let v_len = shape.in_channels * kd * kh;
+    let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
+    fill(line, vp, cols, span, input, off, || {
+        let (vi, ii, zi, yi) = (v, i, kz, ky);
+        v += 1;
+        ky += 1;
+        if ky == kh {
+            ky = 0;
+            kz += 1;
+            if kz == kd {
+                kz = 0;
+                i += 1;
+            }
+        }
+        if vi >= v_len {
+            return None;
+        }
+        let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+        let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+        Some(((ii * id + iz) * ih + iy) * iw)
+    });
+}
+
+/// The portable fill of output row `(bz, by)`'s line of a transposed phase with `(tz, ty)`
+/// taps ([`transposed`]): entry `v = (i, a, b)` reads input plane `bz − a`, row `by − b`,
+/// counted up without divisions; taps outside the input read zeros.
+#[cfg(not(all(feature = "dsp", target_arch = "arm")))]
+#[allow(clippy::too_many_arguments)]
+fn fill_transposed(
+    line: &mut [u32],
+    (vp, cols): (usize, usize),
+    span: (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    shape: &ConvShape,
+    (bz, by): (usize, usize),
+    (tz, ty): (usize, usize),
+) {
+    let [id, ih, iw] = shape.in_size;
+    let v_len = shape.in_channels * tz * ty;
+    let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
+    fill(line, vp, cols, span, input, off, || {
+        let (vi, ii, ai, bi) = (v, i, a, b);
+        v += 1;
+        b += 1;
+        if b == ty {
+            b = 0;
+            a += 1;
+            if a == tz {
+                a = 0;
+                i += 1;
+            }
+        }
+        if vi >= v_len {
+            return None;
+        }
+        let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
+        let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
+        Some(((ii * id + iz) * ih + iy) * iw)
+    });
 }
 
 /// [`conv`] with the fast requantisation, when the worst-case accumulator `bound` allows it;
@@ -1377,6 +1431,54 @@ struct Phase {
     vw: usize,
 }
 
+impl Phase {
+    /// Phase `(fz, fy)` with `(tz, ty)` plane and row taps of `ic` input channels.
+    fn new(ic: usize, (fz, fy): (usize, usize), (tz, ty): (usize, usize)) -> Self {
+        let v_len = ic * tz * ty;
+        let vw = up4(v_len) / 2;
+        Phase {
+            fz,
+            fy,
+            tz,
+            ty,
+            v_len,
+            vw,
+        }
+    }
+}
+
+/// Each x phase's dot products have one shape for every row of the phase: their plans.
+fn phase_plans(xs: &[XPhase; MAX_STRIDE], vw: usize, sw: usize) -> [RowPlan; MAX_STRIDE] {
+    xs.map(|(_, nx, tx, _, _)| {
+        let n = tx * vw;
+        RowPlan::new(if n == 0 { 0 } else { vw }, nx, n, sw)
+    })
+}
+
+/// One output row of a transposed phase with a row per channel ([`AccRows`] flat): each x
+/// phase's dot products for every channel pair in one call (phase `fx` at `x0, x0 + sw, …` of
+/// rows `width` words apart). `line`: the line and its filled words.
+#[inline(always)]
+fn run_phases(
+    xs: &[XPhase; MAX_STRIDE],
+    plans: &[RowPlan; MAX_STRIDE],
+    (wbuf, vw): (&[u32; WEIGHT_WORDS], usize),
+    (line, filled): (&[u32], usize),
+    biases: &[[i32; 2]],
+    (acc, width): (&mut RowAcc, usize),
+    sw: usize,
+) {
+    let phases = xs.iter().zip(plans).take(sw.min(MAX_STRIDE));
+    for (&(x0, nx, tx, wofs, start), plan) in phases {
+        if nx == 0 {
+            continue;
+        }
+        let w = (wbuf.get(wofs..).unwrap_or(&[]), 2 * tx * vw);
+        let x = line.get(start..filled).unwrap_or(&[]);
+        plan.run_channels(x, w, biases, acc, (width, x0));
+    }
+}
+
 /// One x phase of a phase: (first output x, count, column taps, offset of its weights in the
 /// weight buffer, first line word its first output reads).
 type XPhase = (usize, usize, usize, usize, usize);
@@ -1464,6 +1566,17 @@ fn x_phases(
 }
 
 impl KeptWeights {
+    /// A transposed convolution's slot ([`KeptWeights::claim`] under `layer`): each `(fz, fy)`
+    /// phase at its own offset, when they all fit; the slot and its first word.
+    fn claim_phases(&mut self, shape: &ConvShape, layer: Option<usize>) -> (Option<usize>, usize) {
+        let [sd, sh, _] = shape.stride;
+        let all: usize = (0..sd * sh)
+            .map(|f| transposed_phase_words(shape, f / sh, f % sh))
+            .sum();
+        let slot = self.claim(layer.map(|l| (l, shape.stride)), all, sd, sh);
+        (slot, self.base(slot))
+    }
+
     /// The slot that keeps the `words` weight words of `key` (plane and row strides `sd`,
     /// `sh` index its ready bits): the one that holds them already, or a new one after the
     /// kept layers (all forgotten first when the buffer or the slots are full). `None` when
@@ -1541,37 +1654,16 @@ pub(crate) fn transposed<R: Apply>(
     output: &mut [i8],
     scratch: &mut LineScratch,
 ) {
-    let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
-    let [kd, kh, kw] = shape.kernel;
+    let [kd, kh, _] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, _] = shape.padding;
-    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
-    let _ = (id, ih);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let out_plane = od * oh * ow;
     let off = params.input_offset as i16;
-    // The line holds input columns ixlo.. (ixlo ≤ 0: the taps left of column 0 are zeros).
-    let ixlo = 1 - kw.div_ceil(sw) as isize;
     let cols = transposed_cols(shape);
-    let (lo, hi) = (
-        (-ixlo).clamp(0, cols as isize) as usize,
-        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
-    );
-    let span = (lo, hi.max(lo), 0);
-    // Words of the weights of phase (fz, fy): every x phase's [O][c'][v] pairs.
-    let phase_words = |fz: usize, fy: usize| {
-        let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
-        (0..sw.min(MAX_STRIDE))
-            .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
-            .sum::<usize>()
-    };
-    // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
-    let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
-    let key = layer.map(|l| (l, shape.stride));
-    let slot = scratch.kept.claim(key, all, sd, sh);
-    let mut phase_base = scratch.kept.base(slot);
+    let (ixlo, span) = transposed_span(shape);
+    let (slot, mut phase_base) = scratch.kept.claim_phases(shape, layer);
     let table = row_words(rq);
     let words = table
         .as_ref()
@@ -1590,29 +1682,15 @@ pub(crate) fn transposed<R: Apply>(
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), phase_first(fy, sh, ph, oh));
             let base = if slot.is_some() { phase_base } else { 0 };
-            phase_base += phase_words(fz, fy);
+            phase_base += transposed_phase_words(shape, fz, fy);
             if nz * ny == 0 {
                 continue;
             }
-            let bit = 1u64 << ((fz * MAX_STRIDE + fy) % 64);
-            let laid_out = kept.laid_out(slot, bit);
-            let v_len = ic * tz * ty;
-            let vp = up4(v_len);
-            let vw = vp / 2;
-            let phase = Phase {
-                fz,
-                fy,
-                tz,
-                ty,
-                v_len,
-                vw,
-            };
+            let laid_out = kept.laid_out(slot, 1u64 << ((fz * MAX_STRIDE + fy) % 64));
+            let phase = Phase::new(ic, (fz, fy), (tz, ty));
+            let (vw, vp) = (phase.vw, 2 * phase.vw);
             let xs = x_phases(shape, params, &phase, (ixlo, base, laid_out), wbuf);
-            // Each x phase's dot products have one shape for every row of the phase.
-            let plans = xs.map(|(_, nx, tx, _, _)| {
-                let n = tx * vw;
-                crate::arch::RowPlan::new(if n == 0 { 0 } else { vw }, nx, n, sw)
-            });
+            let plans = phase_plans(&xs, vw, sw);
             // The hot loop stays in this body: moved into an `#[inline(always)]` helper it
             // cost about 95 k instructions per pair more on the QEMU Cortex-M7.
             for qz in 0..nz {
@@ -1629,29 +1707,16 @@ pub(crate) fn transposed<R: Apply>(
                         fill_taps(line, (vp, cols, padded), span, input, off, taps);
                     }
                     #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
-                    {
-                        // v = (i, a, b), counted up without divisions.
-                        let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
-                        fill(line, vp, cols, span, input, off, || {
-                            let (vi, ii, ai, bi) = (v, i, a, b);
-                            v += 1;
-                            b += 1;
-                            if b == ty {
-                                b = 0;
-                                a += 1;
-                                if a == tz {
-                                    a = 0;
-                                    i += 1;
-                                }
-                            }
-                            if vi >= v_len {
-                                return None;
-                            }
-                            let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
-                            let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
-                            Some(((ii * id + iz) * ih + iy) * iw)
-                        });
-                    }
+                    fill_transposed(
+                        line,
+                        (vp, cols),
+                        span,
+                        input,
+                        off,
+                        shape,
+                        (bz, by),
+                        (tz, ty),
+                    );
                     // Every x phase's dot products into one row of accumulators per
                     // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
                     // over the whole output row.
@@ -1659,15 +1724,8 @@ pub(crate) fn transposed<R: Apply>(
                     if let (true, Some(words)) = (rows.flat, words) {
                         // A row per channel: each x phase's dot products for every channel
                         // pair in one call, then every row's requantisation in one.
-                        let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
-                        for (&(x0, nx, tx, wofs, start), plan) in phases {
-                            if nx == 0 {
-                                continue;
-                            }
-                            let w = (wbuf.get(wofs..).unwrap_or(&[]), 2 * tx * vw);
-                            let x = line.get(start..vw * cols).unwrap_or(&[]);
-                            plan.run_channels(x, w, biases, acc, (ow, x0));
-                        }
+                        let x = (&line[..], vw * cols);
+                        run_phases(&xs, &plans, (wbuf, vw), x, biases, (acc, ow), sw);
                         let at = (base, out_plane);
                         requant_rows(acc, (ow, oc), rq, words, params.relu, skip, output, at);
                         continue;
@@ -1689,18 +1747,13 @@ pub(crate) fn transposed<R: Apply>(
                             let a1 = acc1.get_mut(x0..).unwrap_or(&mut []);
                             plan.run(x, w, b, (a0, a1));
                         }
-                        let at = |o: usize| o * out_plane + base;
-                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                        let mut req = |a: &[i32], o: usize| {
+                            let at = o * out_plane + base;
+                            requant_row(&a[..ow], rq[o], params.relu, skip, output, at, 1);
+                        };
+                        req(acc0, o);
                         if two {
-                            requant_row(
-                                &acc1[..ow],
-                                rq[o + 1],
-                                params.relu,
-                                skip,
-                                output,
-                                at(o + 1),
-                                1,
-                            );
+                            req(acc1, o + 1);
                         }
                         o += 2;
                     }
@@ -1708,6 +1761,31 @@ pub(crate) fn transposed<R: Apply>(
             }
         }
     }
+}
+
+/// Where a transposed convolution's line lies: it holds input columns `ixlo..` (`ixlo ≤ 0`:
+/// the taps left of column 0 are zeros), the input's columns at line columns `lo..hi`.
+fn transposed_span(shape: &ConvShape) -> (isize, (usize, usize, usize)) {
+    let (iw, kw, sw) = (shape.in_size[2], shape.kernel[2], shape.stride[2]);
+    let ixlo = 1 - kw.div_ceil(sw) as isize;
+    let cols = transposed_cols(shape);
+    let (lo, hi) = (
+        (-ixlo).clamp(0, cols as isize) as usize,
+        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
+    );
+    (ixlo, (lo, hi.max(lo), 0))
+}
+
+/// Words of the laid-out weights of a transposed convolution's phase `(fz, fy)`: every x
+/// phase's `[O][c'][v]` pairs.
+fn transposed_phase_words(shape: &ConvShape, fz: usize, fy: usize) -> usize {
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
+    (0..sw.min(MAX_STRIDE))
+        .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
+        .sum::<usize>()
 }
 
 /// [`transposed`] with the fast requantisation and the skip table, when `bound` allows the
