@@ -26,7 +26,7 @@
 //! ```
 
 #![no_std]
-// The only unsafe code is the inline assembly of the optional `dsp` and `mve` modules.
+// The only unsafe code is the inline assembly of `arch`'s optional `dsp` and `mve` backends.
 #![cfg_attr(not(feature = "dsp"), forbid(unsafe_code))]
 #![cfg_attr(feature = "dsp", deny(unsafe_code))]
 #![deny(missing_docs)]
@@ -38,16 +38,14 @@ extern crate std;
 // script and the host tools); re-exported here so `epssn::spec` and `epssn::geometry` stay.
 pub use epssn_spec::{crc32, geometry, grids, spec};
 
+pub mod arch;
 pub mod attitude;
 pub mod blob;
 pub mod config;
-pub mod dsp;
 pub mod fault;
 pub mod kernels;
 pub mod link;
 pub mod model;
-#[cfg(all(feature = "mve", target_arch = "arm"))]
-pub mod mve;
 pub mod pairing;
 pub mod ping_average;
 pub mod requant;

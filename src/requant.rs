@@ -196,7 +196,7 @@ pub trait Apply: Copy {
     /// paths is left out where it cannot run.
     const HAS_WORDS: bool = false;
 
-    /// The five words [`crate::dsp::requant_rows_s8`] takes (multiplier, left1, right, half,
+    /// The five words [`crate::arch::requant_rows_s8`] takes (multiplier, left1, right, half,
     /// neg), if this requantisation is that row loop's arithmetic.
     #[inline(always)]
     fn words(self) -> Option<[i32; 5]> {

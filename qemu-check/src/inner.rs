@@ -1,9 +1,9 @@
-//! The `epssn::dsp` inner loops (with `dsp` their SMLAD assembly, with `mve` their Helium
+//! The `epssn::arch` inner loops (with `dsp` their SMLAD assembly, with `mve` their Helium
 //! assembly) against plain loops written here, on random lengths, strides, offsets and
 //! values, every tail included (lengths not a multiple of 4, an odd last position, `n` of
 //! 2, 4 and 6 words): one function per kernel, run in the order of [`CASES`].
 
-use epssn::dsp::{
+use epssn::arch::{
     dot2x2, dot2x2_row, pack, pack_rows, requant_max_row, requant_row_s8, smmulr, RowPlan,
 };
 
@@ -287,7 +287,7 @@ fn pack_strided(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
     } else {
         pack_offsets(o.round)
     };
-    epssn::dsp::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
+    epssn::arch::pack_strided(&mut dst, dstride, (pa, pb, sstride), count, oa, ob);
     let column = (0..count).all(|j| {
         dst[j * dstride] == pack(pa[j * sstride] as i16 + oa, pb[j * sstride] as i16 + ob)
     });
@@ -349,10 +349,10 @@ fn requant_rows(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
         let n = -((rng.next() % 2) as i32);
         *p = [m, l, r, if r == 0 { 0 } else { 1 << (r - 1) }, n];
     }
-    let params = epssn::dsp::RowWords::new(&words[..rows]);
+    let params = epssn::arch::RowWords::new(&words[..rows]);
     let mut out = rq.old;
     let ok = params.is_some_and(|p| {
-        epssn::dsp::requant_rows_s8(&rq.acc, &mut out, p, (width, plane), rq.relu, rq.skip())
+        epssn::arch::requant_rows_s8(&rq.acc, &mut out, p, (width, plane), rq.relu, rq.skip())
     });
     let expect_row = |c: usize, i: usize| -> i8 {
         let [m, l, r, h, n] = words[c];
@@ -371,7 +371,7 @@ fn requant_rows(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
     );
     let mut wide = words;
     wide[rows - 1][1 + (o.round % 2) as usize] = 32;
-    t.check(epssn::dsp::RowWords::new(&wide[..rows]).is_none());
+    t.check(epssn::arch::RowWords::new(&wide[..rows]).is_none());
 }
 
 /// requant_max_row: the same arithmetic, the int8 (or ReLU) clamp, and the maximum.
@@ -447,15 +447,15 @@ fn exp_sums(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
         ps = ps.wrapping_add(e);
         pt = pt.wrapping_add(e.wrapping_mul(i as u32));
     }
-    t.check(epssn::dsp::exp_sums(logits, m, &exp) == (ps, pt));
+    t.check(epssn::arch::exp_sums(logits, m, &exp) == (ps, pt));
 }
 
-/// `dsp::pack_line_quads` (a line fill of up to 16 words; with `mve` its Helium loop) against
+/// `arch::pack_line_quads` (a line fill of up to 16 words; with `mve` its Helium loop) against
 /// `pack_rows` word by word:
 /// random rows (some the zero row without offset), lengths a multiple of 4, line widths and
 /// fills shorter than the capacity; a row shorter than the fill's length is refused.
 fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::dsp::{pack_line_quads, LineRows};
+    use epssn::arch::{pack_line_quads, LineRows};
     static ZEROS: [i8; 64] = [0; 64];
     let len = 4 * (1 + (rng.next() % 12) as usize);
     let words = 1 + (rng.next() % 16) as usize;
@@ -505,13 +505,13 @@ fn line_fill_agrees(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     got == want
 }
 
-/// `mve::fill_channel_pairs` (a channel-minor line fill: each tap's channel pairs from
+/// `arch::fill_channel_pairs` (a channel-minor line fill: each tap's channel pairs from
 /// channel 0's row and the channel step) against `pack_rows` on the rows it names, zero
 /// rows for taps outside the input; words it must not write keep their value; a tap whose
 /// last channel's row leaves the input, or an odd channel count, is refused.
 #[cfg(feature = "mve")]
 fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::mve::fill_channel_pairs;
+    use epssn::arch::fill_channel_pairs;
     static ZEROS: [i8; 64] = [0; 64];
     let need = 4 * (1 + (rng.next() % 12) as usize);
     let taps = 1 + (rng.next() % 9) as usize;
@@ -589,12 +589,12 @@ fn channel_pairs_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     got == want
 }
 
-/// `mve::fill_bytes` (the int8 line: each tap's channels' rows, raw, the pad row for taps
+/// `arch::fill_bytes` (the int8 line: each tap's channels' rows, raw, the pad row for taps
 /// outside the input) against a plain loop; bytes it must not write keep their value; a row
 /// past the input, a column of too few entries or a destination one byte short is refused.
 #[cfg(feature = "mve")]
 fn fill_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::mve::fill_bytes;
+    use epssn::arch::fill_bytes;
     let len = 1 + (rng.next() % 40) as usize;
     let taps = 1 + (rng.next() % 9) as usize;
     let channels = 1 + (rng.next() % 8) as usize;
@@ -668,13 +668,13 @@ fn fill_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     *got == want
 }
 
-/// `mve::PairRowsS8::run_channels` (int8 dot products, 16 per instruction, the tail by
+/// `arch::PairRowsS8::run_channels` (int8 dot products, 16 per instruction, the tail by
 /// predication) against a plain loop: random lengths 1 to 80 bytes, 1 to 6 pairs of
 /// positions, 1 to 4 channel pairs, the rows' spare words untouched; slices one short
 /// refused.
 #[cfg(feature = "mve")]
 fn pair_rows_s8_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::mve::PairRowsS8;
+    use epssn::arch::PairRowsS8;
     let n = 1 + (rng.next() % 80) as usize;
     let pairs = 1 + (rng.next() % 6) as usize;
     let step = 1 + (rng.next() % 24) as usize;
@@ -763,11 +763,11 @@ fn bytemuck_bytes(b: &[i8; 512]) -> [u8; 512] {
     b.map(|x| x as u8)
 }
 
-/// `dsp::ChannelTaps` (a whole line's rows, channel by channel and tap by tap, then zero
+/// `arch::ChannelTaps` (a whole line's rows, channel by channel and tap by tap, then zero
 /// rows) through `pack_line_quads`, chunk by chunk, against `pack_rows` on the rows the
 /// definition names; a tap whose last channel's row leaves the input is refused.
 fn channel_taps_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
-    use epssn::dsp::{pack_line_quads, ChannelTaps, LineRows};
+    use epssn::arch::{pack_line_quads, ChannelTaps, LineRows};
     static ZEROS: [i8; 16] = [0; 16];
     let len = 4 * (1 + (rng.next() % 4) as usize);
     let taps = 1 + (rng.next() % 9) as usize;
@@ -822,7 +822,7 @@ fn channel_taps_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
     got == want
 }
 
-/// `dsp::table_columns4` or `dsp::table_columns8` (`lanes` cost-volume columns of two views in
+/// `arch::table_columns4` or `arch::table_columns8` (`lanes` cost-volume columns of two views in
 /// one pass) against the one-column formula on a random piece: Helium builds must take it,
 /// the others refuse it and leave `out` alone. Extreme values (−128, 127 and weights of 256)
 /// come often, the edges of the eight-lane version's 16-bit sums.
@@ -862,10 +862,10 @@ fn table_columns_agree(rng: &mut Rng, bytes: &[i8; 512], lanes: usize) -> bool {
     let old = out;
     let cols = (width, col);
     let took = if lanes == 8 {
-        epssn::dsp::table_columns8(&mut out[..n], reference, src, cols, taps, &table, sum)
+        epssn::arch::table_columns8(&mut out[..n], reference, src, cols, taps, &table, sum)
     } else {
         let four = [taps[0], taps[1], taps[2], taps[3]];
-        epssn::dsp::table_columns4(&mut out[..n], reference, src, cols, four, &table, sum)
+        epssn::arch::table_columns4(&mut out[..n], reference, src, cols, four, &table, sum)
     };
     if took != cfg!(feature = "mve") {
         return false;

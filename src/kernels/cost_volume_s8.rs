@@ -280,7 +280,7 @@ impl Tap {
     }
 
     /// The tap as two adjacent source columns `c, c + 1` and their weights, what the column
-    /// kernels read (`dsp::cost_column`, `dsp::cost_column3`): a last-column tap weighs its
+    /// kernels read (`arch::cost_column`, `arch::cost_column3`): a last-column tap weighs its
     /// left neighbour 0, an invisible one has both weights 0. `None` for rows narrower than
     /// two columns.
     #[inline(always)]
@@ -403,7 +403,7 @@ pub struct CostVolume<'a> {
     /// `& 511` exact).
     table: [i8; 512],
     /// Mean channels: the stored value of `MBQM(S, M', shift')` for the views' sum `S`, at
-    /// index `S + 256` with two views (`S` in −256..=254, [`crate::dsp::mean_column`]'s
+    /// index `S + 256` with two views (`S` in −256..=254, [`crate::arch::mean_column`]'s
     /// layout), at index `max(S, 0)` with three (`S ≤ 3·127`; a negative sum stores what 0
     /// does, the clipped mean, because `M' ≥ 0`).
     mean_table: [i8; 512],
@@ -505,7 +505,7 @@ impl<'a> CostVolume<'a> {
                     }
                     if let Some((c, wl, wr)) = t.window(width) {
                         let table = &self.mean_table;
-                        if crate::dsp::mean_column(
+                        if crate::arch::mean_column(
                             out,
                             reference,
                             src0,
@@ -538,7 +538,7 @@ impl<'a> CostVolume<'a> {
                     continue;
                 }
                 if let Some((c, wl, wr)) = t.window(width) {
-                    if crate::dsp::cost_column(
+                    if crate::arch::cost_column(
                         out,
                         reference,
                         src0,
@@ -581,7 +581,7 @@ impl<'a> CostVolume<'a> {
 
 impl CostVolume<'_> {
     /// Two views with Helium: the columns of a piece four at a time where all four taps have
-    /// two columns ([`crate::dsp::table_columns4`]; the mean table when `mean`), as a mask of
+    /// two columns ([`crate::arch::table_columns4`]; the mean table when `mean`), as a mask of
     /// the columns done (bit `b`, `width ≤ MAX_WIDTH = 64`). 0 in builds without Helium, so
     /// the column loops there compile as before.
     #[inline(always)]
@@ -608,7 +608,7 @@ impl CostVolume<'_> {
                 if let [Some(a), Some(c), Some(d), Some(e), Some(f), Some(g), Some(h), Some(i)] = w
                 {
                     let eight = [a, c, d, e, f, g, h, i];
-                    if crate::dsp::table_columns8(out, reference, src, cols, eight, table, mean) {
+                    if crate::arch::table_columns8(out, reference, src, cols, eight, table, mean) {
                         done |= 0xff << b;
                         b += 8;
                         continue;
@@ -618,7 +618,7 @@ impl CostVolume<'_> {
             let w = [0, 1, 2, 3].map(|k| taps[b + k].window(width));
             if let [Some(t0), Some(t1), Some(t2), Some(t3)] = w {
                 let quad = [t0, t1, t2, t3];
-                if crate::dsp::table_columns4(out, reference, src, cols, quad, table, mean) {
+                if crate::arch::table_columns4(out, reference, src, cols, quad, table, mean) {
                     done |= 0xf << b;
                 }
             }
@@ -630,7 +630,7 @@ impl CostVolume<'_> {
 
 /// Three views, column by column: both taps of a column stay in registers down its rows, and
 /// the variance is `n·Σv² − (Σv)² = (v0 − v1)² + (v0 − v2)² + (v1 − v2)²` (three multiplies).
-/// [`crate::dsp::cost_column3`] takes the columns it can (the unsigned cost volume); the rest
+/// [`crate::arch::cost_column3`] takes the columns it can (the unsigned cost volume); the rest
 /// run here.
 #[inline(always)]
 fn three_view_columns(
@@ -646,7 +646,7 @@ fn three_view_columns(
         let (t0, t1) = (taps[0][b], taps[1][b]);
         if let (Some(w0), Some(w1)) = (t0.window(width), t1.window(width)) {
             let (rq, z) = (cq.requant, cq.zero_point);
-            if crate::dsp::cost_column3(out, reference, sources, (width, b), [w0, w1], rq, z) {
+            if crate::arch::cost_column3(out, reference, sources, (width, b), [w0, w1], rq, z) {
                 continue;
             }
         }

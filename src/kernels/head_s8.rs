@@ -16,7 +16,7 @@
 //! inputs per range row. The optimised kernel gathers them once per `(t, g)` as i16 pairs
 //! (`[y][column slot][plane][channel]`, one new column per position: column `x` lives in slot
 //! `x mod Q` and the weights are prepared for each rotation), computes every ray phase
-//! `(ψ, φ)` of the position two rays × two range bins per [`crate::dsp::dot2x2`], requantises
+//! `(ψ, φ)` of the position two rays × two range bins per [`crate::arch::dot2x2`], requantises
 //! with one `SMMULR` (`RowRequant`) when the accumulator bound allows, tracks each ray's maximum while
 //! producing its logits, and reduces the ray at once (single-pass soft-argmax).
 //!
@@ -548,7 +548,7 @@ fn prepare_weights(shape: &ConvShape, f: &Fast, params: &ConvParams<'_>, wbuf: &
                             for m in 0..half_vp {
                                 let k = (s * f.planes + j) * half_vp + m;
                                 wbuf[base + 2 * k + half] =
-                                    crate::dsp::pack(w(2 * m), w(2 * m + 1));
+                                    crate::arch::pack(w(2 * m), w(2 * m + 1));
                             }
                         }
                     }
@@ -589,11 +589,11 @@ fn gather_column(
             match (plane(2 * m), plane(2 * m + 1)) {
                 (Some(pa), Some(pb)) => {
                     let (a, b) = (&pa[x..], &pb[x..]);
-                    crate::dsp::pack_strided(&mut rows[k..], n, (a, b, iw), ih, off, off);
+                    crate::arch::pack_strided(&mut rows[k..], n, (a, b, iw), ih, off, off);
                 }
                 (Some(pa), None) => {
                     for (d, ra) in rows.chunks_exact_mut(n).zip(pa.chunks_exact(iw)) {
-                        d[k] = crate::dsp::pack(ra[x] as i16 + off, 0);
+                        d[k] = crate::arch::pack(ra[x] as i16 + off, 0);
                     }
                 }
                 _ => {
@@ -675,7 +675,7 @@ fn step_fast<R: LogitRequant>(
     let mut logits = [[0i8; MAX_BINS]; 2];
     let mut acc = [[0i32; MAX_FAST_ROWS]; 2];
     // Every range tap's dot products: the `ih` range rows of a column, `n` words each.
-    let plan = crate::dsp::RowPlan::new(n, ih, n, 1);
+    let plan = crate::arch::RowPlan::new(n, ih, n, 1);
     let inside = |x: usize| (x < iw).then_some(x);
     for j in 0..f.cols {
         // Columns g_lo − j, in slot (g_lo − j) mod Q.

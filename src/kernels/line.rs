@@ -10,7 +10,7 @@
 //! to `[O][column tap][v]`, so every output is a dot product of two contiguous arrays.
 //!
 //! The inner loop computes 2 output channels × 2 positions at once
-//! ([`crate::dsp::dot2x2`]): the line holds i16 values (offset added, 0 at padding) two
+//! ([`crate::arch::dot2x2`]): the line holds i16 values (offset added, 0 at padding) two
 //! per word, the weights are expanded once to i16 pairs with the two channels' words
 //! interleaved, so per 2 taps one load of each position's word, one `LDRD` of the weights
 //! and 4 `SMLAD` give 8 MACs. `v` is padded with zeros (and zero weights) to a multiple of
@@ -42,6 +42,7 @@
 //! imports from them.
 
 use super::{finish, tap_range, ConvParams, ConvShape, Skip};
+use crate::arch::RowPlan;
 use crate::config::{LayerKind, LayerShape};
 use crate::requant::{Apply, Requant};
 
@@ -67,7 +68,7 @@ pub(crate) const fn up4(x: usize) -> usize {
     x.div_ceil(4) * 4
 }
 
-/// [`crate::requant::FastRequant`]'s arithmetic with one `SMMULR` ([`crate::dsp::smmulr`]):
+/// [`crate::requant::FastRequant`]'s arithmetic with one `SMMULR` ([`crate::arch::smmulr`]):
 /// for `a = acc · 2^left` with `|a| < 2^30`, `SRDHM(a, M) = ⌊(a·M + 2^30) / 2^31⌋ =
 /// ⌊(2a·M + 2^31) / 2^32⌋`, and `2a` fits i32; then the same rounding right shift. Exact
 /// wherever `FastRequant` is ([`Requant::fits_fast`]), in 6 instructions instead of 10.
@@ -109,11 +110,11 @@ impl RowRequant {
 impl RowRequant {
     /// `out[i]` = `acc[i]` requantised, ReLU'd if `relu` and clamped to int8 (as
     /// [`super::finish`] without a skip), and the larger of `max` and those values
-    /// ([`crate::dsp::requant_max_row`]).
+    /// ([`crate::arch::requant_max_row`]).
     #[inline(always)]
     pub(crate) fn row_max(self, acc: &[i32], out: &mut [i8], relu: bool, max: i8) -> i8 {
         let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
-        crate::dsp::requant_max_row(acc, out, f, relu, max)
+        crate::arch::requant_max_row(acc, out, f, relu, max)
     }
 }
 
@@ -121,7 +122,7 @@ impl Apply for RowRequant {
     #[inline(always)]
     fn apply(self, acc: i32) -> i32 {
         // `right` ≤ 31 by construction (`new`).
-        crate::dsp::row_requant(
+        crate::arch::row_requant(
             acc,
             self.multiplier,
             self.left1,
@@ -143,7 +144,7 @@ impl Apply for RowRequant {
     #[inline(always)]
     fn row_s8(self, acc: &[i32], out: &mut [i8], relu: bool, skip: Option<&[i32; 256]>) -> bool {
         let f = (self.multiplier, self.left1, self.right, self.half, self.neg);
-        crate::dsp::requant_row_s8(acc, out, f, relu, skip);
+        crate::arch::requant_row_s8(acc, out, f, relu, skip);
         true
     }
 }
@@ -268,7 +269,7 @@ pub(crate) struct RowIn {
     positions: usize,
     words: usize,
     /// The dot products' shape, checked once for every row of the layer.
-    plan: crate::dsp::RowPlan,
+    plan: crate::arch::RowPlan,
 }
 
 #[cfg(not(all(feature = "mve", target_arch = "arm")))]
@@ -281,7 +282,7 @@ impl RowIn {
         RowIn {
             positions,
             words,
-            plan: crate::dsp::RowPlan::new(step, positions, words, 1),
+            plan: crate::arch::RowPlan::new(step, positions, words, 1),
         }
     }
 }
@@ -369,7 +370,7 @@ fn requant_rows<R: Apply>(
     acc: &[i32],
     (width, channels): (usize, usize),
     rq: &[R],
-    words: crate::dsp::RowWords<'_>,
+    words: crate::arch::RowWords<'_>,
     relu: bool,
     skip: SkipLut<'_>,
     out: &mut [i8],
@@ -384,7 +385,7 @@ fn requant_rows<R: Apply>(
         words.get(0..channels),
         out.get_mut(base..),
     ) {
-        if crate::dsp::requant_rows_s8(acc, dst, words, (width, plane), relu, lut) {
+        if crate::arch::requant_rows_s8(acc, dst, words, (width, plane), relu, lut) {
             return;
         }
     }
@@ -485,7 +486,7 @@ impl LineScratch {
 }
 
 /// One row of outputs for all channels: 2 channels × 2 positions per inner loop
-/// ([`crate::dsp::dot2x2`]) into a row of accumulators per channel, then each channel's row
+/// ([`crate::arch::dot2x2`]) into a row of accumulators per channel, then each channel's row
 /// requantised and stored ([`requant_row`]). `weights` holds, per channel pair, the two
 /// channels' words interleaved (`rin.words` words per channel; an odd last channel is paired
 /// with itself).
@@ -503,7 +504,7 @@ pub(crate) fn row<R: Apply>(
     out: &mut [i8],
     rout: RowOut,
     acc: &mut RowAcc,
-    (words, biases): (Option<crate::dsp::RowWords<'_>>, &[[i32; 2]]),
+    (words, biases): (Option<crate::arch::RowWords<'_>>, &[[i32; 2]]),
 ) {
     let (n, positions) = (rin.words, rin.positions);
     let oc = bias.len().min(rq.len());
@@ -551,7 +552,7 @@ pub(crate) fn row<R: Apply>(
 /// Two i16 weights as one word, `a` in the low half.
 #[inline(always)]
 fn word(a: i8, b: i8) -> u32 {
-    crate::dsp::pack(a as i16, b as i16)
+    crate::arch::pack(a as i16, b as i16)
 }
 
 /// Index of word `k` of channel `o` in the pair-interleaved weight buffer (`n` words per
@@ -579,7 +580,7 @@ static ZEROS: [i8; MAX_ROW] = [0; MAX_ROW];
 /// column `in0` on, the other columns are 0 (padding).
 ///
 /// Word by word: entries `2k`, `2k + 1` of every column come from two rows read in step
-/// ([`crate::dsp::pack_rows`]).
+/// ([`crate::arch::pack_rows`]).
 #[inline(always)]
 fn fill(
     line: &mut [u32],
@@ -615,7 +616,7 @@ fn fill(
     for k in 0..vw {
         let (ra, oa) = row(input, src(), in0, len, off);
         let (rb, ob) = row(input, src(), in0, len, off);
-        crate::dsp::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
+        crate::arch::pack_rows(&mut words[lo * vw + k..], vw, ra, rb, oa, ob);
     }
 }
 
@@ -745,7 +746,7 @@ impl TapCursor {
 }
 
 /// [`fill`] on ARM (`dsp`, `mve`): the same line, its rows named by `taps`, handed out 16 line words at
-/// a time by [`crate::dsp::ChannelTaps`] and packed by [`crate::dsp::pack_line_quads`]. One
+/// a time by [`crate::arch::ChannelTaps`] and packed by [`crate::arch::pack_line_quads`]. One
 /// copy for every engine and layer (flash), called once per line. Rows whose length is
 /// not a multiple of 4, or more than [`MAX_ROW_TAPS`] taps per channel, go through [`fill`].
 /// `padded`: the padding columns hold zeros already (an earlier line of the same `vp` and
@@ -760,7 +761,7 @@ fn fill_taps(
     off: i16,
     taps: LineTaps,
 ) {
-    use crate::dsp::{ChannelTaps, LineRows};
+    use crate::arch::{ChannelTaps, LineRows};
     let (lo, hi, in0) = span;
     let vw = vp / 2;
     let len = hi.saturating_sub(lo).min(MAX_ROW);
@@ -820,7 +821,7 @@ fn fill_taps(
         let Some(dst) = words.get_mut(lo * vw + k0..) else {
             return;
         };
-        if !crate::dsp::pack_line_quads(dst, vw, &rows) {
+        if !crate::arch::pack_line_quads(dst, vw, &rows) {
             return;
         }
         k0 += kn;
@@ -846,7 +847,7 @@ fn channel0_rows(taps: LineTaps, count: usize, in0: usize) -> [usize; MAX_ROW_TA
 }
 
 /// The channel-minor fill of a whole line ([`channel_minor`]) with Helium: the taps' channel
-/// pairs (`mve::fill_channel_pairs`), then the line's padding entries read zeros. `at`:
+/// pairs (`arch::fill_channel_pairs`), then the line's padding entries read zeros. `at`:
 /// channel 0's row of each tap ([`channel0_rows`]), `cs` the step to the next channel's; the
 /// columns `lo .. lo + len` are filled.
 #[cfg(all(feature = "mve", target_arch = "arm"))]
@@ -863,7 +864,7 @@ fn fill_channel_pairs(
     let Some(dst) = words.get_mut(lo * vw..) else {
         return;
     };
-    if !crate::mve::fill_channel_pairs(dst, vw, len, (input, at), chans, off) {
+    if !crate::arch::fill_channel_pairs(dst, vw, len, (input, at), chans, off) {
         return;
     }
     // Most layers have none: channels · taps is a multiple of 4.
@@ -880,10 +881,10 @@ fn fill_channel_pairs(
 /// Most taps per channel (`na · nb`) [`fill_taps`] tabulates: 3 × 3 forward and 2 × 2
 /// transposed ones in the EPSSN layers.
 #[cfg(all(feature = "dsp", target_arch = "arm"))]
-const MAX_ROW_TAPS: usize = crate::dsp::ChannelTaps::MAX_TAPS;
+const MAX_ROW_TAPS: usize = crate::arch::ChannelTaps::MAX_TAPS;
 
 /// Whether a line's entries go channel-minor, `v = (tap, i)` (two channels of one tap fill a
-/// word, and the Helium fill computes their rows' addresses itself: `mve::pack_channel_pairs`),
+/// word, and the Helium fill computes their rows' addresses itself: `arch::fill_channel_pairs`),
 /// rather than channel-major, `v = (i, tap)`: with Helium, for an even number of `channels`
 /// whose `taps` per channel [`fill_taps`] tabulates. Each engine lays its weights out in the
 /// order its lines are filled in, so this one function decides both.
@@ -966,14 +967,11 @@ pub(crate) fn conv<R: Apply>(
     output: &mut [i8],
     scratch: &mut LineScratch,
 ) {
-    let [id, ih, iw] = shape.in_size;
+    let [_, _, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
     let [kd, kh, kw] = shape.kernel;
-    let [sd, sh, sw] = shape.stride;
-    let [pd, ph, pw] = shape.padding;
-    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
-    let _ = (id, ih, sd, sh, pd, ph);
+    let [_, _, sw] = shape.stride;
+    let [_, _, pw] = shape.padding;
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let v_len = ic * kd * kh;
     let vp = up4(v_len);
@@ -1010,7 +1008,7 @@ pub(crate) fn conv<R: Apply>(
     let table = row_words(rq);
     let words = table
         .as_ref()
-        .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
+        .and_then(|t| crate::arch::RowWords::new(t.get(..oc)?));
     let mut o0 = 0;
     while o0 < oc {
         let g = group.min(oc - o0);
@@ -1042,29 +1040,7 @@ pub(crate) fn conv<R: Apply>(
                     LineTaps::forward(shape, z, y),
                 );
                 #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
-                {
-                    // v = (i, kz, ky), counted up without divisions.
-                    let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
-                    fill(line, vp, cols, span, input, off, || {
-                        let (vi, ii, zi, yi) = (v, i, kz, ky);
-                        v += 1;
-                        ky += 1;
-                        if ky == kh {
-                            ky = 0;
-                            kz += 1;
-                            if kz == kd {
-                                kz = 0;
-                                i += 1;
-                            }
-                        }
-                        if vi >= v_len {
-                            return None;
-                        }
-                        let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
-                        let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
-                        Some(((ii * id + iz) * ih + iy) * iw)
-                    });
-                }
+                fill_forward(line, (vp, cols), span, input, off, shape, (z, y));
                 row(
                     line,
                     rin,
@@ -1086,6 +1062,84 @@ pub(crate) fn conv<R: Apply>(
         }
         o0 += g;
     }
+}
+
+/// The portable fill of output row `(z, y)`'s line of a forward convolution ([`conv`]):
+/// entry `v = (i, kz, ky)`, counted up without divisions; taps outside the input read zeros.
+#[cfg(not(all(feature = "dsp", target_arch = "arm")))]
+fn fill_forward(
+    line: &mut [u32],
+    (vp, cols): (usize, usize),
+    span: (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    shape: &ConvShape,
+    (z, y): (usize, usize),
+) {
+    let [id, ih, iw] = shape.in_size;
+    let [kd, kh, _] = shape.kernel;
+    let [sd, sh, _] = shape.stride;
+    let [pd, ph, _] = shape.padding;
+    let v_len = shape.in_channels * kd * kh;
+    let (mut v, mut i, mut kz, mut ky) = (0, 0, 0, 0);
+    fill(line, vp, cols, span, input, off, || {
+        let (vi, ii, zi, yi) = (v, i, kz, ky);
+        v += 1;
+        ky += 1;
+        if ky == kh {
+            ky = 0;
+            kz += 1;
+            if kz == kd {
+                kz = 0;
+                i += 1;
+            }
+        }
+        if vi >= v_len {
+            return None;
+        }
+        let iz = (z * sd + zi).checked_sub(pd).filter(|&a| a < id)?;
+        let iy = (y * sh + yi).checked_sub(ph).filter(|&a| a < ih)?;
+        Some(((ii * id + iz) * ih + iy) * iw)
+    });
+}
+
+/// The portable fill of output row `(bz, by)`'s line of a transposed phase with `(tz, ty)`
+/// taps ([`transposed`]): entry `v = (i, a, b)` reads input plane `bz − a`, row `by − b`,
+/// counted up without divisions; taps outside the input read zeros.
+#[cfg(not(all(feature = "dsp", target_arch = "arm")))]
+#[allow(clippy::too_many_arguments)]
+fn fill_transposed(
+    line: &mut [u32],
+    (vp, cols): (usize, usize),
+    span: (usize, usize, usize),
+    input: &[i8],
+    off: i16,
+    shape: &ConvShape,
+    (bz, by): (usize, usize),
+    (tz, ty): (usize, usize),
+) {
+    let [id, ih, iw] = shape.in_size;
+    let v_len = shape.in_channels * tz * ty;
+    let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
+    fill(line, vp, cols, span, input, off, || {
+        let (vi, ii, ai, bi) = (v, i, a, b);
+        v += 1;
+        b += 1;
+        if b == ty {
+            b = 0;
+            a += 1;
+            if a == tz {
+                a = 0;
+                i += 1;
+            }
+        }
+        if vi >= v_len {
+            return None;
+        }
+        let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
+        let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
+        Some(((ii * id + iz) * ih + iy) * iw)
+    });
 }
 
 /// [`conv`] with the fast requantisation, when the worst-case accumulator `bound` allows it;
@@ -1118,11 +1172,11 @@ pub(crate) fn run_conv(
 /// The forward line engine of a Helium build (the other builds' is `conv`), on an int8 line,
 /// for the shapes it takes (false, nothing written, for the others, which the caller's im2col
 /// engine runs): the line holds the raw inputs, entry `v = (tap,
-/// channel)` of column `c` at byte `c·vp + v` (`mve::fill_bytes`), padding entries hold the
+/// channel)` of column `c` at byte `c·vp + v` (`arch::fill_bytes`), padding entries hold the
 /// input's zero point `−input_offset`, and `input_offset · Σ w` is folded into each
 /// channel's bias, so that `bias + Σ w·x` over the line is exactly the i16 line's `bias +
 /// Σ w·(x + input_offset)` (padding adding nothing in both; modulo 2^32 like every
-/// accumulator). The dot products take 16 int8 MACs per instruction (`mve::PairRowsS8`)
+/// accumulator). The dot products take 16 int8 MACs per instruction (`arch::PairRowsS8`)
 /// where the i16 line takes 8. Its shapes: an even output width whose accumulator rows all
 /// fit (one call per line), one weight group, at most [`MAX_ROW_TAPS`] taps per channel, an
 /// offset whose zero point is an int8, the fast requantisation's words.
@@ -1152,10 +1206,10 @@ fn conv_s8<R: Apply>(
     let table = row_words(rq);
     let words = table
         .as_ref()
-        .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
+        .and_then(|t| crate::arch::RowWords::new(t.get(..oc)?));
     let (Ok(pad), Some(plan), Some(words)) = (
         i8::try_from(-params.input_offset),
-        crate::mve::PairRowsS8::new(sw * vp, n, ow / 2),
+        crate::arch::PairRowsS8::new(sw * vp, n, ow / 2),
         words,
     ) else {
         return false;
@@ -1206,7 +1260,7 @@ fn conv_s8<R: Apply>(
             let at = channel0_rows(taps, per_channel, in0);
             let filled = line.get_mut(lo * vp..).is_some_and(|dst| {
                 let rows = (input, &at[..per_channel]);
-                crate::mve::fill_bytes(dst, vp, len, rows, (ic, taps.cs), &pad_row)
+                crate::arch::fill_bytes(dst, vp, len, rows, (ic, taps.cs), &pad_row)
             });
             if !(filled && plan.run_channels(line, (weights, wpair), biases, acc, (ow, 0))) {
                 return true;
@@ -1377,6 +1431,54 @@ struct Phase {
     vw: usize,
 }
 
+impl Phase {
+    /// Phase `(fz, fy)` with `(tz, ty)` plane and row taps of `ic` input channels.
+    fn new(ic: usize, (fz, fy): (usize, usize), (tz, ty): (usize, usize)) -> Self {
+        let v_len = ic * tz * ty;
+        let vw = up4(v_len) / 2;
+        Phase {
+            fz,
+            fy,
+            tz,
+            ty,
+            v_len,
+            vw,
+        }
+    }
+}
+
+/// Each x phase's dot products have one shape for every row of the phase: their plans.
+fn phase_plans(xs: &[XPhase; MAX_STRIDE], vw: usize, sw: usize) -> [RowPlan; MAX_STRIDE] {
+    xs.map(|(_, nx, tx, _, _)| {
+        let n = tx * vw;
+        RowPlan::new(if n == 0 { 0 } else { vw }, nx, n, sw)
+    })
+}
+
+/// One output row of a transposed phase with a row per channel ([`AccRows`] flat): each x
+/// phase's dot products for every channel pair in one call (phase `fx` at `x0, x0 + sw, …` of
+/// rows `width` words apart). `line`: the line and its filled words.
+#[inline(always)]
+fn run_phases(
+    xs: &[XPhase; MAX_STRIDE],
+    plans: &[RowPlan; MAX_STRIDE],
+    (wbuf, vw): (&[u32; WEIGHT_WORDS], usize),
+    (line, filled): (&[u32], usize),
+    biases: &[[i32; 2]],
+    (acc, width): (&mut RowAcc, usize),
+    sw: usize,
+) {
+    let phases = xs.iter().zip(plans).take(sw.min(MAX_STRIDE));
+    for (&(x0, nx, tx, wofs, start), plan) in phases {
+        if nx == 0 {
+            continue;
+        }
+        let w = (wbuf.get(wofs..).unwrap_or(&[]), 2 * tx * vw);
+        let x = line.get(start..filled).unwrap_or(&[]);
+        plan.run_channels(x, w, biases, acc, (width, x0));
+    }
+}
+
 /// One x phase of a phase: (first output x, count, column taps, offset of its weights in the
 /// weight buffer, first line word its first output reads).
 type XPhase = (usize, usize, usize, usize, usize);
@@ -1464,6 +1566,17 @@ fn x_phases(
 }
 
 impl KeptWeights {
+    /// A transposed convolution's slot ([`KeptWeights::claim`] under `layer`): each `(fz, fy)`
+    /// phase at its own offset, when they all fit; the slot and its first word.
+    fn claim_phases(&mut self, shape: &ConvShape, layer: Option<usize>) -> (Option<usize>, usize) {
+        let [sd, sh, _] = shape.stride;
+        let all: usize = (0..sd * sh)
+            .map(|f| transposed_phase_words(shape, f / sh, f % sh))
+            .sum();
+        let slot = self.claim(layer.map(|l| (l, shape.stride)), all, sd, sh);
+        (slot, self.base(slot))
+    }
+
     /// The slot that keeps the `words` weight words of `key` (plane and row strides `sd`,
     /// `sh` index its ready bits): the one that holds them already, or a new one after the
     /// kept layers (all forgotten first when the buffer or the slots are full). `None` when
@@ -1541,41 +1654,20 @@ pub(crate) fn transposed<R: Apply>(
     output: &mut [i8],
     scratch: &mut LineScratch,
 ) {
-    let [id, ih, iw] = shape.in_size;
     let [od, oh, ow] = shape.out_size;
-    let [kd, kh, kw] = shape.kernel;
+    let [kd, kh, _] = shape.kernel;
     let [sd, sh, sw] = shape.stride;
     let [pd, ph, _] = shape.padding;
-    // On ARM the rows come from `LineTaps`, which reads these from the shape itself.
-    #[cfg(all(feature = "dsp", target_arch = "arm"))]
-    let _ = (id, ih);
     let (ic, oc) = (shape.in_channels, shape.out_channels);
     let out_plane = od * oh * ow;
     let off = params.input_offset as i16;
-    // The line holds input columns ixlo.. (ixlo ≤ 0: the taps left of column 0 are zeros).
-    let ixlo = 1 - kw.div_ceil(sw) as isize;
     let cols = transposed_cols(shape);
-    let (lo, hi) = (
-        (-ixlo).clamp(0, cols as isize) as usize,
-        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
-    );
-    let span = (lo, hi.max(lo), 0);
-    // Words of the weights of phase (fz, fy): every x phase's [O][c'][v] pairs.
-    let phase_words = |fz: usize, fy: usize| {
-        let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
-        (0..sw.min(MAX_STRIDE))
-            .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
-            .sum::<usize>()
-    };
-    // Kept weights: each (fz, fy) phase at its own offset, when they all fit.
-    let all: usize = (0..sd * sh).map(|f| phase_words(f / sh, f % sh)).sum();
-    let key = layer.map(|l| (l, shape.stride));
-    let slot = scratch.kept.claim(key, all, sd, sh);
-    let mut phase_base = scratch.kept.base(slot);
+    let (ixlo, span) = transposed_span(shape);
+    let (slot, mut phase_base) = scratch.kept.claim_phases(shape, layer);
     let table = row_words(rq);
     let words = table
         .as_ref()
-        .and_then(|t| crate::dsp::RowWords::new(t.get(..oc)?));
+        .and_then(|t| crate::arch::RowWords::new(t.get(..oc)?));
     let rows = AccRows::new(oc, ow, words.is_some(), 1, skip);
     let bias_table = bias_pairs(params.bias.get(..oc).unwrap_or(&[]));
     let biases = bias_table.get(..oc.div_ceil(2)).unwrap_or(&[]);
@@ -1590,29 +1682,15 @@ pub(crate) fn transposed<R: Apply>(
         for fy in 0..sh {
             let (ty, (y0, ny)) = (phase_taps(kh, sh, fy), phase_first(fy, sh, ph, oh));
             let base = if slot.is_some() { phase_base } else { 0 };
-            phase_base += phase_words(fz, fy);
+            phase_base += transposed_phase_words(shape, fz, fy);
             if nz * ny == 0 {
                 continue;
             }
-            let bit = 1u64 << ((fz * MAX_STRIDE + fy) % 64);
-            let laid_out = kept.laid_out(slot, bit);
-            let v_len = ic * tz * ty;
-            let vp = up4(v_len);
-            let vw = vp / 2;
-            let phase = Phase {
-                fz,
-                fy,
-                tz,
-                ty,
-                v_len,
-                vw,
-            };
+            let laid_out = kept.laid_out(slot, 1u64 << ((fz * MAX_STRIDE + fy) % 64));
+            let phase = Phase::new(ic, (fz, fy), (tz, ty));
+            let (vw, vp) = (phase.vw, 2 * phase.vw);
             let xs = x_phases(shape, params, &phase, (ixlo, base, laid_out), wbuf);
-            // Each x phase's dot products have one shape for every row of the phase.
-            let plans = xs.map(|(_, nx, tx, _, _)| {
-                let n = tx * vw;
-                crate::dsp::RowPlan::new(if n == 0 { 0 } else { vw }, nx, n, sw)
-            });
+            let plans = phase_plans(&xs, vw, sw);
             // The hot loop stays in this body: moved into an `#[inline(always)]` helper it
             // cost about 95 k instructions per pair more on the QEMU Cortex-M7.
             for qz in 0..nz {
@@ -1629,29 +1707,16 @@ pub(crate) fn transposed<R: Apply>(
                         fill_taps(line, (vp, cols, padded), span, input, off, taps);
                     }
                     #[cfg(not(all(feature = "dsp", target_arch = "arm")))]
-                    {
-                        // v = (i, a, b), counted up without divisions.
-                        let (mut v, mut i, mut a, mut b) = (0, 0, 0, 0);
-                        fill(line, vp, cols, span, input, off, || {
-                            let (vi, ii, ai, bi) = (v, i, a, b);
-                            v += 1;
-                            b += 1;
-                            if b == ty {
-                                b = 0;
-                                a += 1;
-                                if a == tz {
-                                    a = 0;
-                                    i += 1;
-                                }
-                            }
-                            if vi >= v_len {
-                                return None;
-                            }
-                            let iz = bz.checked_sub(ai).filter(|&c| c < id)?;
-                            let iy = by.checked_sub(bi).filter(|&c| c < ih)?;
-                            Some(((ii * id + iz) * ih + iy) * iw)
-                        });
-                    }
+                    fill_transposed(
+                        line,
+                        (vp, cols),
+                        span,
+                        input,
+                        off,
+                        shape,
+                        (bz, by),
+                        (tz, ty),
+                    );
                     // Every x phase's dot products into one row of accumulators per
                     // channel (phase fx at x0, x0 + sw, …), then one requantisation pass
                     // over the whole output row.
@@ -1659,15 +1724,8 @@ pub(crate) fn transposed<R: Apply>(
                     if let (true, Some(words)) = (rows.flat, words) {
                         // A row per channel: each x phase's dot products for every channel
                         // pair in one call, then every row's requantisation in one.
-                        let phases = xs.iter().zip(&plans).take(sw.min(MAX_STRIDE));
-                        for (&(x0, nx, tx, wofs, start), plan) in phases {
-                            if nx == 0 {
-                                continue;
-                            }
-                            let w = (wbuf.get(wofs..).unwrap_or(&[]), 2 * tx * vw);
-                            let x = line.get(start..vw * cols).unwrap_or(&[]);
-                            plan.run_channels(x, w, biases, acc, (ow, x0));
-                        }
+                        let x = (&line[..], vw * cols);
+                        run_phases(&xs, &plans, (wbuf, vw), x, biases, (acc, ow), sw);
                         let at = (base, out_plane);
                         requant_rows(acc, (ow, oc), rq, words, params.relu, skip, output, at);
                         continue;
@@ -1689,18 +1747,13 @@ pub(crate) fn transposed<R: Apply>(
                             let a1 = acc1.get_mut(x0..).unwrap_or(&mut []);
                             plan.run(x, w, b, (a0, a1));
                         }
-                        let at = |o: usize| o * out_plane + base;
-                        requant_row(&acc0[..ow], rq[o], params.relu, skip, output, at(o), 1);
+                        let mut req = |a: &[i32], o: usize| {
+                            let at = o * out_plane + base;
+                            requant_row(&a[..ow], rq[o], params.relu, skip, output, at, 1);
+                        };
+                        req(acc0, o);
                         if two {
-                            requant_row(
-                                &acc1[..ow],
-                                rq[o + 1],
-                                params.relu,
-                                skip,
-                                output,
-                                at(o + 1),
-                                1,
-                            );
+                            req(acc1, o + 1);
                         }
                         o += 2;
                     }
@@ -1708,6 +1761,31 @@ pub(crate) fn transposed<R: Apply>(
             }
         }
     }
+}
+
+/// Where a transposed convolution's line lies: it holds input columns `ixlo..` (`ixlo ≤ 0`:
+/// the taps left of column 0 are zeros), the input's columns at line columns `lo..hi`.
+fn transposed_span(shape: &ConvShape) -> (isize, (usize, usize, usize)) {
+    let (iw, kw, sw) = (shape.in_size[2], shape.kernel[2], shape.stride[2]);
+    let ixlo = 1 - kw.div_ceil(sw) as isize;
+    let cols = transposed_cols(shape);
+    let (lo, hi) = (
+        (-ixlo).clamp(0, cols as isize) as usize,
+        (iw as isize - ixlo).clamp(0, cols as isize) as usize,
+    );
+    (ixlo, (lo, hi.max(lo), 0))
+}
+
+/// Words of the laid-out weights of a transposed convolution's phase `(fz, fy)`: every x
+/// phase's `[O][c'][v]` pairs.
+fn transposed_phase_words(shape: &ConvShape, fz: usize, fy: usize) -> usize {
+    let [kd, kh, kw] = shape.kernel;
+    let [sd, sh, sw] = shape.stride;
+    let (ic, oc) = (shape.in_channels, shape.out_channels);
+    let vw = up4(ic * phase_taps(kd, sd, fz) * phase_taps(kh, sh, fy)) / 2;
+    (0..sw.min(MAX_STRIDE))
+        .map(|fx| oc.div_ceil(2) * 2 * phase_taps(kw, sw, fx) * vw)
+        .sum::<usize>()
 }
 
 /// [`transposed`] with the fast requantisation and the skip table, when `bound` allows the
@@ -1832,15 +1910,15 @@ impl PairColumns {
         self.k = c0.len().min(c1.len()).min(COL_LEN);
         #[cfg(not(feature = "dsp"))]
         for ((w, &a), &b) in self.words[..self.k].iter_mut().zip(c0).zip(c1) {
-            *w = crate::dsp::pack(a, b);
+            *w = crate::arch::pack(a, b);
         }
         #[cfg(feature = "dsp")]
         for (p, c) in [c0, c1].into_iter().enumerate() {
             let groups = self.k / 4;
             let (head, tail) = c[..self.k].split_at(groups * 4);
             for (g, w) in head.chunks_exact(4).zip(self.pairs[p].chunks_exact_mut(2)) {
-                w[0] = crate::dsp::pack(g[0], g[2]);
-                w[1] = crate::dsp::pack(g[1], g[3]);
+                w[0] = crate::arch::pack(g[0], g[2]);
+                w[1] = crate::arch::pack(g[1], g[3]);
             }
             self.tail[p] = [0; 4];
             self.tail[p][..tail.len()].copy_from_slice(tail);
@@ -1859,7 +1937,7 @@ impl PairColumns {
         }
         #[cfg(feature = "dsp")]
         {
-            use crate::dsp::{smlad, sxtb16, sxtb16_ror8};
+            use crate::arch::{smlad, sxtb16, sxtb16_ror8};
             let groups = self.k / 4;
             let (wg, wt) = w[..self.k.min(w.len())].split_at(groups * 4);
             let (p0, p1) = (&self.pairs[0][..2 * groups], &self.pairs[1][..2 * groups]);

@@ -8,7 +8,7 @@
 //! any int8 input (see [`accumulator_bound`]); after validation the arithmetic is exact.
 //!
 //! With the `dsp` cargo feature the convolution inner loops use `SMLAD`/`SXTB16`
-//! ([`crate::dsp`]); the results are the same bits (checked on QEMU Cortex-M7 by
+//! ([`crate::arch`]); the results are the same bits (checked on QEMU Cortex-M7 by
 //! `qemu-check/`).
 //!
 //! Tensor layouts are channel-major: 2D `[C][H][W]`, 3D `[C][D][H][W]`; weights `[O][I][k…]`

@@ -324,7 +324,7 @@ fn up4(x: usize) -> usize {
 }
 
 /// The i16 slot of value `k` in a word buffer viewed as i16 (`2j`, `2j + 1` share word `j`,
-/// the even one in the low half as [`crate::dsp::pack`]).
+/// the even one in the low half as [`crate::arch::pack`]).
 #[inline(always)]
 const fn slot(k: usize) -> usize {
     if cfg!(target_endian = "little") {
@@ -336,7 +336,7 @@ const fn slot(k: usize) -> usize {
 
 /// Fused head, column by column: the `I × H` inputs of one input (plane, column) are
 /// gathered once (i16 pairs, offset added, `[y][c]`) and shared by the `kd · kw` rays that
-/// read them. Two rays × two range bins per [`crate::dsp::dot2x2`] (the rays' weights
+/// read them. Two rays × two range bins per [`crate::arch::dot2x2`] (the rays' weights
 /// interleaved), the fast requantisation when the bound allows it, and each ray's maximum
 /// tracked while its logits are produced, so the soft-argmax is a single pass (EPSSN-S on
 /// the QEMU Cortex-M7: about 86 instructions per logit, soft-argmax included).
@@ -376,7 +376,7 @@ fn head_by_columns<R: Apply>(
                 };
                 for k in 0..n {
                     wbuf[(p * kh + ky) * 2 * n + 2 * k + half] =
-                        crate::dsp::pack(w(2 * k), w(2 * k + 1));
+                        crate::arch::pack(w(2 * k), w(2 * k + 1));
                 }
             }
         }
@@ -409,7 +409,7 @@ fn head_by_columns<R: Apply>(
                     let mut y = 0;
                     while y < ih {
                         let two = y + 1 < ih;
-                        let acc = crate::dsp::dot2x2(
+                        let acc = crate::arch::dot2x2(
                             &col[y * n..ih * n],
                             if two { n } else { 0 },
                             w,
@@ -445,7 +445,7 @@ fn head_by_columns<R: Apply>(
 #[inline(always)]
 pub(super) fn ray_depth_max(logits: &[i8], m: i8, p: &SoftArgmaxParams<'_>) -> U16F16 {
     // m ≥ q, so m − q is in 0..=255 and the table index exact.
-    let (s, t) = crate::dsp::exp_sums(logits, m, p.exp);
+    let (s, t) = crate::arch::exp_sums(logits, m, p.exp);
     let end = |q: i8| p.exp[(m as i32 - q as i32) as u8 as usize] as u32;
     depth_of(
         s,

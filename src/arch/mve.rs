@@ -1,6 +1,7 @@
-//! Helium (M-profile Vector Extension, MVE) inner loops for the Cortex-M55/M85, behind the
-//! `mve` feature; the same bits as the portable and `dsp` loops of [`crate::dsp`], which
-//! call these in their place.
+//! The Helium (M-profile Vector Extension, MVE) backend for the Cortex-M55/M85, behind the
+//! `mve` feature: the same bits as the portable loops of `arch` and the `dsp` backend's; the
+//! table of operations in `arch` says which of these run in their place. This module imports
+//! only the shared pieces (`super::insn`, `super::rows`), never the DSP backend.
 //!
 //! One 128-bit instruction handles four words: `VMLAVA.S16` adds eight i16 products to a
 //! general-purpose register (four `SMLAD`s), `VLD20`/`VLD21` split the line engine's
@@ -16,7 +17,10 @@
 //! The wrapping of the accumulators is the same as `SMLAD`'s and the Rust loops': sums
 //! modulo 2^32 (the kernels' accumulator bounds exclude overflow anyway).
 
-/// [`crate::dsp::dot2x2`] with Helium: the same result for the same arguments (two output
+use super::insn::smlad;
+use super::rows::{LineRows, ZERO_ROW};
+
+/// `arch::dot2x2` with Helium: the same result for the same arguments (two output
 /// channels × two positions over `n` words of i16 pairs, channel words interleaved in `w`).
 /// Four words per iteration (32 MACs in 9 instructions); a last pair of words (`n ≡ 2 mod 4`)
 /// or a last word (odd `n`) goes through `SMLAD`. Slices too short for `n` and `step` give
@@ -67,15 +71,15 @@ pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> [i3
     for k in 4 * quads..n {
         let (x0, x1) = (x[k], x[step + k]);
         let (w0, w1) = (w[2 * k], w[2 * k + 1]);
-        a00 = crate::dsp::smlad(x0, w0, a00);
-        a01 = crate::dsp::smlad(x1, w0, a01);
-        a10 = crate::dsp::smlad(x0, w1, a10);
-        a11 = crate::dsp::smlad(x1, w1, a11);
+        a00 = smlad(x0, w0, a00);
+        a01 = smlad(x1, w0, a01);
+        a10 = smlad(x0, w1, a10);
+        a11 = smlad(x1, w1, a11);
     }
     [a00, a01, a10, a11]
 }
 
-/// The four-entry blocks of [`crate::dsp::pack_rows`]: `dst[j · stride] = pack(a[j] + oa,
+/// The four-entry blocks of `arch::pack_rows`: `dst[j · stride] = pack(a[j] + oa,
 /// b[j] + ob)` for `j < 4 · quads`, 8 instructions per block (the `dsp` loop takes 22). The
 /// caller has checked that `dst` holds index `(4 · quads − 1) · stride`, that `a` and `b`
 /// hold `4 · quads` entries and that `stride ≤ usize::MAX / 16`; anything else does nothing.
@@ -133,7 +137,7 @@ pub fn pack_row_quads(
     }
 }
 
-/// The four-entry blocks of [`crate::dsp::pack_strided`]: `dst[j · dstride] = pack(a[j ·
+/// The four-entry blocks of `arch::pack_strided`: `dst[j · dstride] = pack(a[j ·
 /// sstride] + oa, b[j · sstride] + ob)` for `j < 4 · quads`, byte gathers for the two
 /// columns and a scatter store, 10 instructions per block (the `dsp` loop takes 40). Does
 /// nothing unless `dst` holds index `(4 · quads − 1) · dstride`, `a` and `b` index `(4 · quads
@@ -229,7 +233,7 @@ macro_rules! eight_columns {
 /// A whole line fill with Helium (the line engine's, `kernels::line`): for each pair `k` of
 /// `rows` (entries `2k`, `2k + 1`: rows `a`, `b` with offsets `oa`, `ob`), `dst[k + j · vw]
 /// = pack(a[j] + oa, b[j] + ob)` for `j < need`, `need` a multiple of 4: what
-/// [`crate::dsp::pack_rows`] does for one word, for up to 16 words in one call. Eight columns
+/// `arch::pack_rows` does for one word, for up to 16 words in one call. Eight columns
 /// per pass: byte loads widened to 16-bit lanes, the offsets added in them, `VSRI`/`VSLI`
 /// pair the two rows' values of the odd and the even columns into words, two scatter stores
 /// write the eight line words (11 instructions per eight columns; a tail-predicated loop, so
@@ -238,7 +242,7 @@ macro_rules! eight_columns {
 /// assembly too: 6 instructions per line word (the Rust loop around [`pack_row_quads`] spent
 /// about 100 per word choosing the rows and checking slices). Returns false, doing nothing,
 /// for an odd number of rows, `need` not a positive multiple of 4, or a `dst` too short.
-pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &crate::dsp::LineRows<'_>) -> bool {
+pub fn pack_line_quads(dst: &mut [u32], vw: usize, rows: &LineRows<'_>) -> bool {
     let Some((pairs, quads)) = rows.fill_shape(dst.len(), vw) else {
         return false;
     };
@@ -345,7 +349,6 @@ pub fn fill_channel_pairs(
     (channels, cs): (usize, usize),
     off: i16,
 ) -> bool {
-    static ZERO_ROW: [i8; 256] = [0; 256];
     let pairs = channels / 2;
     let words = at.len().checked_mul(pairs);
     let rows_fit = rows_within(input.len(), at, (channels, cs), need);
@@ -586,7 +589,7 @@ macro_rules! pair_loop {
     (@body S8_BLOCK) => { s8_block!() };
 }
 
-/// [`crate::dsp::dot2x2_row`]'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
+/// `arch::dot2x2_row`'s pairs of positions with Helium, for an even `n ≥ 4` words: for each pair `p < pairs`, positions `q = 2p` and `q + 1` get
 /// `acc0[q·astep] = bias[0] + x_q·w_0`, `acc0[(q + 1)·astep] = bias[0] + x_{q+1}·w_0` and the
 /// same with `acc1`, `bias[1]` and `w_1`, where `x_q = x[q·step .. q·step + n]` and the
 /// channels' words are interleaved in `w`. The pair loop is assembly too: 13 instructions per
@@ -804,13 +807,6 @@ impl PairRows {
         bias: [i32; 2],
         (acc0, acc1): (&mut [i32], &mut [i32]),
     ) -> bool {
-        let PairRows {
-            step,
-            n,
-            pairs,
-            astep,
-            ..
-        } = *self;
         if x.len() < self.x_len
             || w.len() < self.w_len
             || acc0.len() < self.acc_len
@@ -831,16 +827,53 @@ impl PairRows {
             }
             return true;
         }
+        // SAFETY: the slices are at least as long as `new` computed (checked above).
+        #[allow(unsafe_code)]
+        unsafe {
+            self.pairs_on_stack(
+                x.as_ptr(),
+                w.as_ptr(),
+                bias,
+                (acc0.as_mut_ptr(), acc1.as_mut_ptr()),
+            );
+        }
+        true
+    }
+
+    /// The pair loop of [`PairRows::run`] for the shapes whose state does not fit the
+    /// registers (`astep` other than 1 or 2, or `n ≡ 2 mod 4`): its state read back from the
+    /// stack after each pair, the last two words of `n ≡ 2 mod 4` by `SMLAD`s.
+    ///
+    /// # Safety
+    ///
+    /// `x` readable for `x_len` words, `w` for `w_len` words, both accumulator rows writable
+    /// for `acc_len` words (in the caller's allocations).
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn pairs_on_stack(
+        &self,
+        x: *const u32,
+        w: *const u32,
+        bias: [i32; 2],
+        (acc0, acc1): (*mut i32, *mut i32),
+    ) {
+        let PairRows {
+            step,
+            n,
+            pairs,
+            astep,
+            ..
+        } = *self;
         // The pair loop's state, read back after each pair: accumulator pointers, accumulator
         // step (bytes), biases, weights, the advance from one pair's end to the next pair's
         // start (bytes), the inner loop's count, pairs left.
         let mut st = [
-            acc0.as_mut_ptr() as u32,
-            acc1.as_mut_ptr() as u32,
+            acc0 as u32,
+            acc1 as u32,
             (astep * 4) as u32,
             bias[0] as u32,
             bias[1] as u32,
-            w.as_ptr() as u32,
+            w as u32,
             (2 * step * 4).wrapping_sub(n * 4) as u32,
             (n / 4) as u32,
             pairs as u32,
@@ -884,9 +917,9 @@ impl PairRows {
                     "str   {t}, [{st}, #32]",
                     "bne   2b",
                     st = in(reg) st.as_mut_ptr(),
-                    x0 = inout(reg) x.as_ptr() => _,
-                    x1 = inout(reg) x.as_ptr().add(step) => _,
-                    w = inout(reg) w.as_ptr() => _,
+                    x0 = inout(reg) x => _,
+                    x1 = inout(reg) x.add(step) => _,
+                    w = inout(reg) w => _,
                     t = out(reg) _,
                     u = out(reg) _,
                     v = out(reg) _,
@@ -901,7 +934,7 @@ impl PairRows {
                 )
             };
         }
-        // SAFETY: pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
+        // SAFETY (the caller's conditions): pair p reads x[2p·step ..][..n] and x[(2p + 1)·step ..][..n], both ending at
         // most at last·step + n ≤ x.len(), and w[..2n] (the lengths `new` computed, checked
         // above); n / 4 ≥ 1, so the inner
         // `DLS`/`LE` loop runs exactly n / 4 times, and with the tail (n mod 4 = 2) leaves both
@@ -934,12 +967,11 @@ impl PairRows {
                 );
             }
         }
-        true
     }
 }
 
-/// The four-value blocks of [`crate::dsp::requant_rows_s8`] (and of
-/// [`crate::dsp::requant_row_s8`], one row): row `c < params.len()` requantises
+/// The four-value blocks of `arch::requant_rows_s8` (and of
+/// `arch::requant_row_s8`, one row): row `c < params.len()` requantises
 /// `acc[c·4·quads ..][..4·quads]` with `params[c] = [multiplier, left1, right, half, neg]`
 /// into `out[c·plane ..][..4·quads]`: `t = r(acc[i])` with `x = VRMULH(acc << left1,
 /// multiplier)` (= `SMMULR`) and `r = (x + half + (x >> 31 & neg)) >> right`, then with
@@ -947,7 +979,7 @@ impl PairRows {
 /// gathered by `VLDRW … UXTW #2`), and `out[i] = clamp(t, −128, 127)`: about 3.5
 /// instructions per value and 12 per row (a call per row took about 60). Returns false, writing nothing, unless `quads ≥ 1` and every
 /// row's slices fit. A `left1` or `right` of 32 or more shifts as `VSHL` does (the callers
-/// pass [`crate::dsp::RowWords`], whose shifts are below 32).
+/// pass `arch::RowWords`, whose shifts are below 32).
 pub fn requant_rows_quads(
     acc: &[i32],
     out: &mut [i8],
@@ -1061,7 +1093,7 @@ pub fn requant_rows_quads(
     true
 }
 
-/// The four-value blocks of [`crate::dsp::requant_max_row`]: `out[i] = sat(r(acc[i]))` for
+/// The four-value blocks of `arch::requant_max_row`: `out[i] = sat(r(acc[i]))` for
 /// `i < 4 · quads` (`r` as in [`requant_rows_quads`], `sat` the int8 clamp or, with `relu`,
 /// the clamp to `0..=127`), returning the larger of `max` and every value written (`VMAXV`
 /// across each block): about 3.5 instructions per value (the `dsp` loop takes 14). Returns
@@ -1237,8 +1269,8 @@ macro_rules! table_columns {
 }
 
 table_columns!(
-    /// Four adjacent columns `col .. col + 4` of [`crate::dsp::cost_column`] (`sum` false) or
-    /// [`crate::dsp::mean_column`] (`sum` true) with Helium, one row of four values per
+    /// Four adjacent columns `col .. col + 4` of `arch::cost_column` (`sum` false) or
+    /// `arch::mean_column` (`sum` true) with Helium, one row of four values per
     /// iteration: for every row `k` and lane `l`, with `i = k·width + col + l`, the warped
     /// value `w = (src[k·width + c_l]·wl_l + src[k·width + c_l + 1]·wr_l + 128) >> 8` (two byte
     /// gathers, `VRSHR` for the rounding) and `out[i] = table[reference[i] − w + 255]` (or
@@ -1259,7 +1291,7 @@ table_columns!(
     table_columns8, 8, u16, i16, "16", "h.u16"
 );
 
-/// [`crate::dsp::exp_sums`] with Helium for a non-zero multiple of 4 logits: four logits per
+/// `arch::exp_sums` with Helium for a non-zero multiple of 4 logits: four logits per
 /// iteration, the table read by a halfword gather, `VADDVA` adding the four weights to `S`
 /// and `VMLADAVA` their products with the bins' indices to `T` (7 instructions per four
 /// logits; the `DSP` loop takes 5 per logit). Returns `None` for other lengths.
@@ -1326,19 +1358,13 @@ pub fn fill_bytes(
     (channels, cs): (usize, usize),
     pad: &[i8],
 ) -> bool {
-    let rows_fit = rows_within(input.len(), at, (channels, cs), len);
-    let entries = at.len().checked_mul(channels);
-    let dst_fits = columns_within(dst.len(), len, vp, entries);
-    if channels == 0
-        || len == 0
-        || len > 256
-        || pad.len() < len
-        || entries.is_none_or(|n| n > vp)
-        || vp > 4096
-        || !rows_fit
-        || !dst_fits
-        || cs > i32::MAX as usize / 2
-    {
+    if !fill_bytes_fits(
+        dst.len(),
+        (vp, len),
+        (input.len(), at),
+        (channels, cs),
+        pad.len(),
+    ) {
         return false;
     }
     let passes = 8 * len.div_ceil(8) as i32;
@@ -1439,6 +1465,28 @@ pub fn fill_bytes(
         }
     }
     true
+}
+
+/// The checks of [`fill_bytes`]: 1 to 256 columns, a pad row as long, every tap's rows within
+/// the input, `at.len()·channels ≤ vp ≤ 4096` entries and every column's within the line.
+#[inline(always)]
+fn fill_bytes_fits(
+    dst_len: usize,
+    (vp, len): (usize, usize),
+    (input_len, at): (usize, &[usize]),
+    (channels, cs): (usize, usize),
+    pad_len: usize,
+) -> bool {
+    let entries = at.len().checked_mul(channels);
+    channels > 0
+        && len > 0
+        && len <= 256
+        && pad_len >= len
+        && entries.is_some_and(|n| n <= vp)
+        && vp <= 4096
+        && rows_within(input_len, at, (channels, cs), len)
+        && columns_within(dst_len, len, vp, entries)
+        && cs <= i32::MAX as usize / 2
 }
 
 /// The int8 twin of [`PairRows`] (`kernels::line::conv_s8`): pairs of positions `step`
@@ -1564,5 +1612,148 @@ impl PairRowsS8 {
             );
         }
         true
+    }
+}
+
+/// The operations `arch` takes from this backend in the uniform form of its table (what each
+/// computes: the `arch` function of the same name): the prefix done here and the rest left to
+/// the portable loops, or the whole call declined.
+pub mod ops {
+    use super::{dot2x2_row_pairs, requant_max_row_quads, requant_rows_quads, PairRows};
+
+    /// `arch::dot2x2`: every shape (the last pair of words or word by `SMLAD`).
+    #[inline(always)]
+    pub fn dot2x2(x: &[u32], step: usize, w: &[u32], n: usize, acc: [i32; 4]) -> Option<[i32; 4]> {
+        Some(super::dot2x2(x, step, w, n, acc))
+    }
+
+    /// A row plan's pair loop, shape checked once: an even number of positions and of words.
+    pub type Pairs = Option<PairRows>;
+
+    /// The pair loop of rows of `positions` dot products of `n` words, where it applies.
+    #[inline(always)]
+    pub fn pairs(step: usize, positions: usize, n: usize, astep: usize) -> Pairs {
+        // The pair loop checks exactly the slices `dot2x2_row_checked` checks (and refuses
+        // what they refuse), so where it applies it runs alone.
+        if positions.is_multiple_of(2) && n.is_multiple_of(2) {
+            PairRows::new(step, n, positions / 2, astep)
+        } else {
+            None
+        }
+    }
+
+    /// One row of a plan: `PairRows::run`, or `None` without a pair loop.
+    #[inline(always)]
+    pub fn run_pairs(
+        pairs: &Pairs,
+        x: &[u32],
+        w: &[u32],
+        bias: [i32; 2],
+        (acc0, acc1): (&mut [i32], &mut [i32]),
+    ) -> Option<bool> {
+        pairs.as_ref().map(|p| p.run(x, w, bias, (acc0, acc1)))
+    }
+
+    /// Every channel pair of a line in one call when the pair loop keeps its state in
+    /// registers (`PairRows::run_channels`); `None` otherwise (the caller goes pair by pair).
+    #[inline(always)]
+    pub fn run_channel_pairs(
+        pairs: &Pairs,
+        x: &[u32],
+        (w, wstride): (&[u32], usize),
+        bias: &[[i32; 2]],
+        acc: &mut [i32],
+        (rstride, first): (usize, usize),
+    ) -> Option<bool> {
+        let p = pairs.filter(|p| p.in_registers())?;
+        Some(p.run_channels(x, (w, wstride), bias, acc, (rstride, first)))
+    }
+
+    /// The pairs of positions of a checked row (`arch::dot2x2_row`) for an even `n ≥ 4`
+    /// and at least one pair; an odd last position is the caller's.
+    #[inline(always)]
+    pub fn row_pairs(
+        x: &[u32],
+        (step, positions, n): (usize, usize, usize),
+        w: &[u32],
+        bias: [i32; 2],
+        (acc0, acc1, astep): (&mut [i32], &mut [i32], usize),
+    ) -> bool {
+        n.is_multiple_of(2)
+            && n >= 4
+            && positions >= 2
+            && dot2x2_row_pairs(x, (step, n), positions / 2, w, bias, (acc0, acc1, astep))
+    }
+
+    /// The blocks of four values of `arch::requant_max_row` (shifts below 32); the values
+    /// done and the maximum.
+    #[inline(always)]
+    pub fn requant_max_row(
+        acc: &[i32],
+        out: &mut [i8],
+        rq: (i32, u32, u32, i32, i32),
+        relu: bool,
+        max: i8,
+    ) -> (usize, i8) {
+        let quads = acc.len().min(out.len()) / 4;
+        if rq.1 < 32 && rq.2 < 32 && quads > 0 {
+            (
+                4 * quads,
+                requant_max_row_quads(acc, out, rq, relu, max, quads),
+            )
+        } else {
+            (0, max)
+        }
+    }
+
+    /// The blocks of four values of `arch::requant_row_s8` (shifts below 32): one row of the
+    /// whole-line loop. The values done.
+    #[inline(always)]
+    pub fn requant_row(
+        acc: &[i32],
+        out: &mut [i8],
+        (multiplier, left1, right, half, neg): (i32, u32, u32, i32, i32),
+        relu: bool,
+        skip: Option<&[i32; 256]>,
+    ) -> usize {
+        let quads = acc.len().min(out.len()) / 4;
+        if left1 < 32 && right < 32 && quads > 0 {
+            let words = [[multiplier, left1 as i32, right as i32, half, neg]];
+            if requant_rows_quads(acc, out, &words, (quads, 0), relu, skip) {
+                return 4 * quads;
+            }
+        }
+        0
+    }
+
+    /// `arch::requant_rows_s8` in one call for a width that is a positive multiple of 4.
+    #[inline(always)]
+    pub fn requant_rows(
+        acc: &[i32],
+        out: &mut [i8],
+        params: &[[i32; 5]],
+        (width, plane): (usize, usize),
+        relu: bool,
+        skip: Option<&[i32; 256]>,
+    ) -> bool {
+        width.is_multiple_of(4)
+            && width > 0
+            && requant_rows_quads(acc, out, params, (width / 4, plane), relu, skip)
+    }
+
+    /// The blocks of four words of `arch::pack_strided` by gathers; the words done.
+    #[inline(always)]
+    pub fn pack_strided_quads(
+        dst: &mut [u32],
+        dstride: usize,
+        (a, b, sstride): (&[i8], &[i8], usize),
+        count: usize,
+        (oa, ob): (i16, i16),
+    ) -> usize {
+        let quads = count / 4;
+        if quads > 0 {
+            super::pack_strided_quads(dst, dstride, (a, b, sstride), quads, (oa, ob));
+        }
+        4 * quads
     }
 }
