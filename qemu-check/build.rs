@@ -1,8 +1,9 @@
-//! Links against the repository's memory map (`memory.x` at the root; for the Cortex-M55,
-//! `boards/mps3-an547/memory/memory.x`) with the RAM region widened to the board's data memory (4 MiB
-//! of SRAM on the MPS2-AN500, 512 KiB of DTCM on the MPS3-AN547): this harness keeps three whole activations of
-//! up to 128 KiB on its stack, which the firmware's RAM budget (weights/budgets.json, the
-//! root memory.x) is not meant to hold. FLASH, origins and everything else are the root's.
+//! Links against the board's memory map (the repository's `memory.x`; for the
+//! Cortex-M55, `boards/mps3-an547/memory/memory.x`) with the RAM region widened to the board's
+//! data memory (4 MiB of SRAM on the MPS2-AN500, 512 KiB of DTCM on the MPS3-AN547): this
+//! harness keeps three whole activations of up to 128 KiB on its stack, which the firmware's
+//! RAM budget (weights/budgets.json, the board's memory.x) is not meant to hold. FLASH, origins
+//! and everything else are the board's.
 fn main() {
     let out = std::path::PathBuf::from(std::env::var("OUT_DIR").unwrap());
     // The Cortex-M55 build (`--target thumbv8m.main-none-eabihf --features mve`) links against

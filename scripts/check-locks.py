@@ -13,7 +13,7 @@ import tomllib
 from collections import defaultdict
 from pathlib import Path
 
-LOCKS = ["Cargo.lock", "firmware/Cargo.lock", "qemu-check/Cargo.lock",
+LOCKS = ["Cargo.lock", "boards/mps2-an500/Cargo.lock", "qemu-check/Cargo.lock",
          "boards/stm32h743/Cargo.lock", "boards/mps3-an547/Cargo.lock", "fuzz/Cargo.lock"]
 
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Supply-chain checks with cargo-deny (config: deny.toml) for each of the five cargo workspaces:
-# the host workspace, firmware/, qemu-check/, boards/stm32h743/, boards/mps3-an547/ and fuzz/.
+# the host workspace, boards/mps2-an500/, qemu-check/, boards/stm32h743/, boards/mps3-an547/ and fuzz/.
 #
 # - licences, bans (duplicate versions, wildcard requirements) and sources (crates.io only) are
 #   always checked, on each workspace's Cargo.lock; any violation fails the script.
@@ -17,10 +17,10 @@ cd "$(dirname "$0")/.."
 root=$PWD
 
 deny_version=0.20.2
-workspaces=(. firmware qemu-check boards/stm32h743 boards/mps3-an547 fuzz)
+workspaces=(. boards/mps2-an500 qemu-check boards/stm32h743 boards/mps3-an547 fuzz)
 # Graphs that end up in a firmware image: a second version of a crate there fails the check
 # unless deny.toml skips it with a reason (the host and fuzz graphs only report duplicates).
-firmware_graphs=" firmware qemu-check boards/stm32h743 boards/mps3-an547 "
+firmware_graphs=" boards/mps2-an500 qemu-check boards/stm32h743 boards/mps3-an547 "
 # One deny.toml serves five graphs, so an allowance or skip may be unused in all but one of
 # them: cargo-deny's per-graph notices about that are quieted here, and the script reports an
 # entry that none of the five graphs uses (further below).

@@ -27,7 +27,7 @@ command -v flip-link >/dev/null 2>&1 || cargo install --locked flip-link
 
 step "format"
 cargo fmt --all -- --check
-(cd firmware && cargo fmt -- --check)
+(cd boards/mps2-an500 && cargo fmt -- --check)
 
 step "supply chain: licences, bans, sources and, when the RustSec database is reachable, advisories (cargo-deny, all five workspaces)"
 bash scripts/deny.sh
@@ -47,12 +47,12 @@ cargo clippy -p epssn --lib --target thumbv7em-none-eabihf --features dsp -- -D 
 RUSTFLAGS="-C target-cpu=cortex-m55" cargo clippy -p epssn --lib --target thumbv8m.main-none-eabihf \
     --features mve --target-dir target/mve -- -D warnings
 
-step "firmware: clippy and release build (and with defmt logging)"
-(cd firmware && cargo clippy --release -- -D warnings && cargo build --release)
-(cd firmware && cargo build --release --features defmt)
+step "Cortex-M7 firmware (boards/mps2-an500): clippy and release build (and with defmt logging)"
+(cd boards/mps2-an500 && cargo clippy --release -- -D warnings && cargo build --release)
+(cd boards/mps2-an500 && cargo build --release --features defmt)
 
-step "firmware self-test in QEMU (mps2-an500, Cortex-M7)"
-(cd firmware && timeout 300 cargo run --release)
+step "Cortex-M7 firmware self-test in QEMU (mps2-an500)"
+(cd boards/mps2-an500 && timeout 300 cargo run --release)
 
 step "STM32H743 board: format, clippy, release build and link (not run: no hardware here)"
 # Its own workspace and target directory (boards/stm32h743/target). It links through
@@ -110,15 +110,15 @@ EPSSN_BLOB="$PWD/weights/general-3view/epssn-s.q8.bin" "$host_sim" sil \
 
 step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance tests, QEMU, SIL"
 # The second configuration from the same code, in its own target directories (target/epssn-p,
-# firmware/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
+# boards/mps2-an500/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
 # (the SIL runs through epssn-sil, the sil crate's own binary).
 p_start=$SECONDS
-EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil \
+EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil-core \
     --target-dir target/epssn-p
 # The kernels' whole-network checks at EPSSN-P's shapes (the random-shape ones are EPSSN-S's).
 EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-reference --test bitexact_kernels network \
     --target-dir target/epssn-p
-(cd firmware && EPSSN_SPEC=weights/epssn-p.json timeout 600 \
+(cd boards/mps2-an500 && EPSSN_SPEC=weights/epssn-p.json timeout 600 \
     cargo run --release --target-dir target/epssn-p)
 EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
     --frames 3 --faults 0 --json

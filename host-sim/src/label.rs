@@ -13,27 +13,22 @@ use epssn_aris::npy;
 use epssn_sim::poses;
 use epssn_sim::site::Site;
 
-use crate::run::{blob_views, pair_recording, PairingArgs};
+use crate::pairing::{blob_views, pair_recording, PairingOptions};
 
-/// Arguments of `host-sim label`.
-#[derive(clap::Args, Debug)]
-pub struct LabelArgs {
+/// Options of `host-sim label`.
+#[derive(Debug)]
+pub struct LabelOptions {
     /// ARIS recording to label.
-    #[arg(long)]
     pub recording: PathBuf,
     /// The site's mesh (.stl, .obj, .ply; metres, z up: docs/SITES.md).
-    #[arg(long)]
     pub site: PathBuf,
     /// The sonar's pose at each frame in the site frame (CSV: frame, x_m, y_m, z_m, roll_deg,
     /// pitch_deg, yaw_deg; docs/SITES.md).
-    #[arg(long)]
     pub poses: PathBuf,
     /// Output folder for `depth_<frame>.npy` and `mask_<frame>.npy` (`run --gt DIR`).
-    #[arg(long)]
     pub out: PathBuf,
     /// The weights, views and pairing `run` will be given: they decide its reference frames.
-    #[command(flatten)]
-    pub pairing: PairingArgs,
+    pub pairing: PairingOptions,
 }
 
 /// One reference frame's label, named as `run --gt` looks it up.
@@ -44,7 +39,7 @@ struct Label {
 }
 
 /// Runs `host-sim label`.
-pub fn label(args: &LabelArgs, out: &mut impl Write) -> Result<()> {
+pub fn label(args: &LabelOptions, out: &mut impl Write) -> Result<()> {
     let weights_dir = args.pairing.weights_dir()?;
     let pairing = pair_recording(
         &args.pairing,

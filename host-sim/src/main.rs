@@ -1,8 +1,12 @@
-//! `host-sim`: command-line entry; each subcommand lives in its own library module.
+//! `host-sim`: the command line. Each subcommand's arguments are parsed here (`cmd/`, one file
+//! a command) into the plain options of the library function that runs it, in the host crate
+//! of its role.
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+
+mod cmd;
 
 #[derive(Parser)]
 #[command(name = "host-sim", version, about = "epssn host tools")]
@@ -14,57 +18,57 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
-    Inspect(epssn_aris::inspect::InspectArgs),
+    Inspect(cmd::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
-    Quantise(epssn_quant::quantise::QuantiseArgs),
+    Quantise(cmd::quantise::QuantiseArgs),
     /// Where the int8 model loses accuracy: each tensor rounded alone, and all but it.
-    Qdiag(epssn_quant::qdiag::QdiagArgs),
+    Qdiag(cmd::qdiag::QdiagArgs),
     /// The main job: pair a recording's frames by roll, run the int8 library and the float
     /// model, check bit-exactness, score against ground truth, write PNG and PLY.
-    Run(host_sim::run::RunArgs),
+    Run(cmd::run::RunArgs),
     /// Concatenate simulated samples into one recording with ground truth (the demo data).
-    Bundle(host_sim::run::BundleArgs),
+    Bundle(cmd::bundle::BundleArgs),
     /// Ground truth for a recording from its site's mesh and the sonar's pose at each frame,
     /// for every reference view `run` forms (what `run --gt` reads).
-    Label(host_sim::label::LabelArgs),
+    Label(cmd::label::LabelArgs),
     /// Simulate sonar scenes with exact ground truth into sample folders.
-    Simulate(epssn_sim::simulate::SimulateArgs),
+    Simulate(cmd::simulate::SimulateArgs),
     /// Fit the simulator's noise model (speckle looks, floor, gain, dynamic range,
     /// crosstalk) to a recording's image statistics; writes a `simulate --params` file.
-    FitSensor(epssn_sim::sensor_fit::FitSensorArgs),
+    FitSensor(cmd::fit_sensor::FitSensorArgs),
     /// MAE and chamfer distance between two depth maps (.npy).
-    Metrics(epssn_sim::metrics::MetricsArgs),
+    Metrics(cmd::metrics::MetricsArgs),
     /// Software in the loop: boot the firmware in QEMU, stream a recording over the link,
     /// check the depth maps bit for bit against the host library; optional fuzz run.
-    Sil(epssn_sil::sil::SilArgs),
+    Sil(cmd::sil::SilArgs),
     /// Per-layer MACs and QEMU Cortex-M7 instructions of the firmware.
-    Bench(epssn_sil::bench::BenchArgs),
+    Bench(cmd::bench::BenchArgs),
     /// Train the float EPSSN on simulated data (build with `--features train`).
     #[cfg(feature = "train")]
-    Train(epssn_train::cli::TrainArgs),
+    Train(cmd::train::TrainArgs),
     /// Evaluate weights on a simulated test folder: the f64 reference network and, with
     /// `--int8`, the int8 library (MAE and CD as in the paper).
-    Eval(epssn_eval::eval::EvalArgs),
+    Eval(cmd::eval::EvalArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let stdout = std::io::stdout();
     let result = match cli.command {
-        Command::Inspect(args) => epssn_aris::inspect::run(&args, &mut stdout.lock()),
-        Command::Quantise(args) => epssn_quant::quantise::run(&args, &mut stdout.lock()),
-        Command::Qdiag(args) => epssn_quant::qdiag::run(&args),
-        Command::Run(args) => host_sim::run::run(&args, &mut stdout.lock()),
-        Command::Bundle(args) => host_sim::run::bundle(&args, &mut stdout.lock()),
-        Command::Label(args) => host_sim::label::label(&args, &mut stdout.lock()),
-        Command::Simulate(args) => epssn_sim::simulate::run(&args),
-        Command::FitSensor(args) => epssn_sim::sensor_fit::run(&args, &mut stdout.lock()),
-        Command::Metrics(args) => epssn_sim::metrics::run(&args),
-        Command::Sil(args) => epssn_sil::sil::run(&args, &mut stdout.lock()),
-        Command::Bench(args) => epssn_sil::bench::run(&args, &mut stdout.lock()),
+        Command::Inspect(args) => epssn_aris::inspect::run(&args.into(), &mut stdout.lock()),
+        Command::Quantise(args) => epssn_quant::quantise::run(&args.into(), &mut stdout.lock()),
+        Command::Qdiag(args) => epssn_quant::qdiag::run(&args.into()),
+        Command::Run(args) => host_sim::run::run(&args.into(), &mut stdout.lock()),
+        Command::Bundle(args) => host_sim::run::bundle(&args.into(), &mut stdout.lock()),
+        Command::Label(args) => host_sim::label::label(&args.into(), &mut stdout.lock()),
+        Command::Simulate(args) => epssn_sim::simulate::run(&args.into()),
+        Command::FitSensor(args) => epssn_sim::sensor_fit::run(&args.into(), &mut stdout.lock()),
+        Command::Metrics(args) => epssn_sim::metrics::run(&args.into()),
+        Command::Sil(args) => epssn_sil_core::sil::run(&args.into(), &mut stdout.lock()),
+        Command::Bench(args) => epssn_sil_core::bench::run(&args.into(), &mut stdout.lock()),
         #[cfg(feature = "train")]
-        Command::Train(args) => epssn_train::cli::train(&args),
-        Command::Eval(args) => epssn_eval::eval::run(&args),
+        Command::Train(args) => epssn_train::cli::train(&args.into()),
+        Command::Eval(args) => epssn_eval::eval::run(&args.into()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -16,7 +16,7 @@ use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
 use epssn_mcap::sonar::{header, ns, write_sonar_frame};
 use epssn_mcap::Bag;
 
-use crate::run::CandidateReport;
+use crate::pairing::CandidateReport;
 
 pub use epssn_mcap::sonar::{sonar_points, SONAR_FRAME, WORLD_FRAME};
 

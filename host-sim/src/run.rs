@@ -13,103 +13,52 @@ use anyhow::{bail, ensure, Context, Result};
 use epssn::attitude::Attitude;
 use epssn::config;
 use epssn::model::{Model, Workspace};
-use epssn::pairing::{check_pair, CachedFrame};
 use epssn::ping_average;
 use fixed::types::U16F16;
 use serde::Serialize;
 
 use crate::figure;
 use crate::mcap_out::{self, PairMessages, RunMessages};
+use crate::pairing::{
+    frame_attitude, model_of, pair_recording, CandidateReport, FrameViews, Pairing, PairingOptions,
+};
 use crate::sweep::{self, CloudFrame};
 use epssn_aris::aris::ArisReader;
 use epssn_aris::{npy, polar};
+use epssn_mcap::msgs::SonarPoint;
 use epssn_reference::{floatref, reference_model, weights};
 use epssn_sim::dataset::demo_dir;
 use epssn_sim::metrics::{self, Accuracy, Metrics};
 use epssn_sim::poses::SitePose;
 use epssn_sim::preview;
 
-/// Arguments of `host-sim run`.
-#[derive(clap::Args, Debug)]
-pub struct RunArgs {
+/// Options of `host-sim run`.
+#[derive(Debug)]
+pub struct RunOptions {
     /// ARIS recording (default: the bundled simulated demo, `data/demo/recording.aris`).
-    #[arg(long)]
     pub recording: Option<PathBuf>,
     /// Ground-truth folder with `depth_<frame>.npy` and `mask_<frame>.npy` per reference
     /// frame (default: `gt/` beside the bundled demo recording; `gt-<spec>/` for another spec).
-    #[arg(long)]
     pub gt: Option<PathBuf>,
     /// Weights, views and how frames are grouped.
-    #[command(flatten)]
-    pub pairing: PairingArgs,
+    pub pairing: PairingOptions,
     /// Dynamic range of the recording's 0–255 counts, dB, for averaging pings in intensity
     /// (80 for ARIS files, docs/ARIS.md; 70 for the simulator's default).
-    #[arg(long, default_value_t = 80.0)]
     pub ping_dynamic_range_db: f32,
     /// Output folder for PNGs, PLYs and `summary.json`.
-    #[arg(long, default_value = "out/run")]
     pub out: PathBuf,
     /// Print the summary as JSON.
-    #[arg(long)]
     pub json: bool,
     /// Also write the run as ROS 2 messages (CDR) in this MCAP file: images, depth maps,
     /// point clouds, the sonar's transforms, the pair checks and the summary (docs/MCAP.md).
-    #[arg(long)]
     pub mcap: Option<PathBuf>,
     /// Frame of the clouds: `sonar`, each pair in its reference view's sonar frame; `world`
     /// also merges every pair by its reference frame's attitude (and `--poses` positions) into
     /// `world.ply` and, with `--mcap`, one merged cloud.
-    #[arg(long, value_enum, default_value_t = CloudFrame::Sonar)]
     pub frame: CloudFrame,
     /// Each frame's position in the site (`frame,x_m,y_m,z_m,roll_deg,pitch_deg,yaw_deg`, as
     /// `bundle` writes and `label` reads): moves the world-frame clouds and the transforms.
-    #[arg(long)]
     pub poses: Option<PathBuf>,
-}
-
-/// What decides the depth maps a recording gives: `run` and `label` share it, so `label`
-/// labels exactly the reference views `run` forms.
-#[derive(clap::Args, Debug, Clone, Default)]
-pub struct PairingArgs {
-    /// Weights folder (`epssn-s.q8.bin` + `manifest.json`); default: the firmware's weights.
-    #[arg(long)]
-    pub weights: Option<PathBuf>,
-    /// Views per depth map (2 or 3); default: the count the weights were trained for (the
-    /// blob's `views`, else the spec's).
-    #[arg(long)]
-    pub views: Option<usize>,
-    /// Pair frames by index instead of by roll, `REF:SRC` (repeatable), for recordings
-    /// without rotator roll. The roll between them is assumed to be the baseline.
-    #[arg(long = "pair", value_parser = parse_pair)]
-    pub pairs: Vec<(usize, usize)>,
-    /// Pings averaged per view (`epssn::ping_average`): each run of this many consecutive
-    /// frames at one roll (within the pair tolerance) becomes one frame, named by its first;
-    /// frames left over are skipped with a warning. Default: the pings per view the weights
-    /// were trained on (their manifest's `speckle_looks`), else 1.
-    #[arg(long)]
-    pub pings_per_view: Option<u32>,
-}
-
-impl PairingArgs {
-    /// The weights folder: given, else the firmware's.
-    pub fn weights_dir(&self) -> Result<PathBuf> {
-        match &self.weights {
-            Some(w) => Ok(w.clone()),
-            None => weights::firmware_weights_dir(),
-        }
-    }
-}
-
-fn parse_pair(s: &str) -> std::result::Result<(usize, usize), String> {
-    let (a, b) = s.split_once(':').ok_or("expected REF:SRC")?;
-    Ok((
-        a.trim()
-            .parse()
-            .map_err(|_| format!("bad frame index {a}"))?,
-        b.trim()
-            .parse()
-            .map_err(|_| format!("bad frame index {b}"))?,
-    ))
 }
 
 /// One depth map of the run.
@@ -129,22 +78,6 @@ pub struct PairReport {
     pub float: Option<Metrics>,
     /// Int8 library against ground truth.
     pub int8: Option<Metrics>,
-}
-
-/// One candidate pair (frames whose rotator rolls pair) and the pose gate's verdict on it
-/// (docs/POSE.md), the very check the device runs.
-#[derive(Clone, Debug, Serialize)]
-pub struct CandidateReport {
-    /// Frame indices, reference first.
-    pub frames: Vec<usize>,
-    /// The pair is used (a depth map is computed).
-    pub accepted: bool,
-    /// Relative roll, degrees: from the attitudes, or the rotator rolls' difference.
-    pub roll_deg: f64,
-    /// Tilt of the forward axis, degrees; null without attitude (the roll-only rule).
-    pub residual_deg: Option<f64>,
-    /// `ok`, `roll_only`, `roll` or `residual`.
-    pub reason: &'static str,
 }
 
 /// The run's summary (`--json`).
@@ -176,125 +109,6 @@ pub struct Summary {
     pub warnings: Vec<String>,
 }
 
-/// The pose gate on a candidate group: each source j checked at baseline j·step against the
-/// reference with the library's [`epssn::pairing::check_pair`]; the figures are those of the
-/// first rejected source, else of the one with the largest residual (as the device reports).
-pub fn gate(
-    group: &[usize],
-    rolls: &[Option<f64>],
-    attitudes: &[Option<Attitude>],
-) -> CandidateReport {
-    let frame = |i: usize| CachedFrame {
-        seq: i as u32,
-        roll_deg: rolls.get(i).copied().flatten().unwrap_or(f64::NAN) as f32,
-        attitude: attitudes.get(i).copied().flatten(),
-        slot: 0,
-    };
-    let reference = frame(group[0]);
-    let mut worst: Option<epssn::pairing::PairCheck> = None;
-    for (j, &src) in group.iter().enumerate().skip(1) {
-        let c = check_pair(
-            &reference,
-            &frame(src),
-            j,
-            config::ROLL_STEP_DEG,
-            config::PAIR_TOLERANCE_DEG,
-            config::PAIR_RESIDUAL_TOLERANCE_DEG,
-        );
-        let take = match worst {
-            None => true,
-            Some(w) => {
-                !c.verdict.accepted() || (w.verdict.accepted() && c.residual_deg > w.residual_deg)
-            }
-        };
-        if take {
-            worst = Some(c);
-        }
-        if !c.verdict.accepted() {
-            break;
-        }
-    }
-    let c = worst.unwrap_or(epssn::pairing::PairCheck {
-        reference: 0,
-        source: 0,
-        roll_deg: f32::NAN,
-        residual_deg: f32::NAN,
-        verdict: epssn::attitude::Verdict::Roll,
-    });
-    CandidateReport {
-        frames: group.to_vec(),
-        accepted: c.verdict.accepted(),
-        roll_deg: f64::from(c.roll_deg),
-        residual_deg: c
-            .residual_deg
-            .is_finite()
-            .then_some(f64::from(c.residual_deg)),
-        reason: c.verdict.reason(),
-    }
-}
-
-fn frame_attitude(reader: &ArisReader, i: usize) -> Option<Attitude> {
-    Attitude::from_array(reader.frame_header(i).ok()?.attitude()?)
-}
-
-fn frame_roll(reader: &ArisReader, i: usize) -> Option<f64> {
-    let h = reader.frame_header(i).ok()?;
-    [h.sonar_roll_deg, h.roll_abs_position_deg]
-        .into_iter()
-        .find(|r| r.is_finite())
-        .map(|r| r as f64)
-}
-
-/// Pairs frames by roll: each frame with a later frame `step` (and `2·step` for 3 views) more
-/// rolled, within the spec's tolerance. Each frame is a reference at most once.
-pub fn pair_by_roll(rolls: &[Option<f64>], views: usize) -> Vec<Vec<usize>> {
-    let mut out = Vec::new();
-    for (i, ri) in rolls.iter().enumerate() {
-        let Some(ri) = ri else { continue };
-        let mut group = vec![i];
-        for k in 1..views {
-            let want = ri + config::ROLL_STEP_DEG * k as f64;
-            let found =
-                rolls.iter().enumerate().skip(i + 1).find(|(_, r)| {
-                    r.is_some_and(|r| (r - want).abs() <= config::PAIR_TOLERANCE_DEG)
-                });
-            match found {
-                Some((j, _)) => group.push(j),
-                None => break,
-            }
-        }
-        if group.len() == views {
-            out.push(group);
-        }
-    }
-    out
-}
-
-/// Bursts of `pings` consecutive frames at one roll (each within the pair tolerance of the
-/// first's), keyed by their first frame; greedy from the start, a frame that cannot start a
-/// full burst is skipped. With one ping every frame with a roll is its own burst.
-pub fn ping_bursts(rolls: &[Option<f64>], pings: usize) -> BTreeMap<usize, Vec<usize>> {
-    let mut out = BTreeMap::new();
-    let mut i = 0;
-    while i < rolls.len() {
-        let Some(first) = rolls[i] else {
-            i += 1;
-            continue;
-        };
-        let full = i + pings <= rolls.len()
-            && rolls[i..i + pings]
-                .iter()
-                .all(|r| r.is_some_and(|r| (r - first).abs() <= config::PAIR_TOLERANCE_DEG));
-        if full {
-            out.insert(i, (i..i + pings).collect());
-            i += pings;
-        } else {
-            i += 1;
-        }
-    }
-    out
-}
-
 fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
     let d = dir.join(format!("depth_{frame:04}.npy"));
     if !d.exists() {
@@ -315,7 +129,7 @@ fn load_gt(dir: &Path, frame: usize) -> Result<Option<(Vec<f32>, Vec<bool>)>> {
 }
 
 /// Runs `host-sim run`.
-pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
+pub fn run(args: &RunOptions, out: &mut impl Write) -> Result<()> {
     let weights_dir = args.pairing.weights_dir()?;
     let bundle = weights::load(&weights_dir)?;
     let model = model_of(&bundle.blob, &weights_dir)?;
@@ -323,55 +137,29 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
         .recording
         .clone()
         .unwrap_or_else(|| demo_dir().join("recording.aris"));
-    let gt_dir = args.gt.clone().or_else(|| {
-        args.recording
-            .is_none()
-            // The demo's ground truth on the build's output grid (`gt/` for EPSSN-S).
-            .then(|| {
-                demo_dir().join(epssn_spec::load::per_spec_name(
-                    "gt",
-                    epssn::config::SPEC_FILE_NAME,
-                ))
-            })
-    });
     let Pairing {
         reader,
         frames,
         groups,
         candidates,
-        warnings,
+        mut warnings,
     } = pair_recording(&args.pairing, model.views(), &weights_dir, &recording)?;
     std::fs::create_dir_all(&args.out)?;
     let images = polar_images(args, &reader, &frames, &groups)?;
-
     let poses = match &args.poses {
         Some(p) => Some(epssn_sim::poses::load(p, reader.frame_count())?),
         None => None,
     };
-
-    // The library computes each group's features and depth in one call and hands the
-    // features back for the bit-exactness check.
-    let mut ws = Box::new(Workspace::new());
-    let mut details = Vec::new();
-    let mut computed = Vec::new();
-    for group in &groups {
-        let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
-        let maps = depth_maps(&model, &bundle, &views, &mut ws)
-            .with_context(|| format!("depth of frames {group:?}"))?;
-        let gt = match &gt_dir {
-            Some(dir) => load_gt(dir, group[0])?,
-            None => None,
-        };
-        let name = format!("frame{:04}", group[0]);
-        write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
-        details.push(pair_report(group, &frames, &maps, gt.as_ref())?);
-        computed.push((maps, gt));
-    }
-    let mut warnings = warnings;
-    let clouds: Vec<(usize, Vec<epssn_mcap::msgs::SonarPoint>)> = groups
+    let computed = compute_groups(args, &model, &bundle, &groups, &images)?;
+    let details = computed
+        .iter()
+        .zip(&groups)
+        .map(|(c, g)| pair_report(g, &frames, &c.maps, c.gt.as_ref()))
+        .collect::<Result<Vec<_>>>()?;
+    let clouds: Vec<(usize, Vec<SonarPoint>)> = groups
         .iter()
         .zip(&computed)
-        .map(|(g, (maps, _))| Ok((g[0], mcap_out::sonar_points(&maps.int8, &images[&g[0]])?)))
+        .map(|(g, c)| Ok((g[0], mcap_out::sonar_points(&c.maps.int8, &images[&g[0]])?)))
         .collect::<Result<_>>()?;
     let merged = match args.frame {
         CloudFrame::Sonar => None,
@@ -383,65 +171,25 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
             &mut warnings,
         )?,
     };
-    let summary = Summary {
-        recording: recording.display().to_string(),
-        weights: weights_dir.display().to_string(),
-        pairs: details.len(),
-        pings_per_view: frames.pings_per_view,
-        float: Accuracy::of(
-            &details
-                .iter()
-                .filter_map(|d| d.float.clone())
-                .collect::<Vec<_>>(),
-        ),
-        int8: Accuracy::of(
-            &details
-                .iter()
-                .filter_map(|d| d.int8.clone())
-                .collect::<Vec<_>>(),
-        ),
-        int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
-            / details.len() as f64,
-        bit_exact: details.iter().all(|d| d.bit_exact),
+    let summary = Summary::of(
+        &recording,
+        &weights_dir,
+        &frames,
         details,
         candidates,
-        residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
         warnings,
-    };
+    );
     let summary_json = serde_json::to_string_pretty(&summary)?;
     std::fs::write(args.out.join("summary.json"), &summary_json)?;
     if let Some(path) = &args.mcap {
-        let pairs: Vec<PairMessages> = groups
-            .iter()
-            .zip(&computed)
-            .map(|(g, (maps, gt))| PairMessages {
-                frames: g,
-                int8: &maps.int8,
-                float: &maps.float,
-                truth: gt.as_ref().map(|(d, _)| d.as_slice()),
-                polar: &images[&g[0]],
-            })
-            .collect();
-        // Every frame's attitude, bursts' other pings included: the transforms show the
-        // sonar's motion, not only the views the pairing kept.
-        let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
-            .map(|i| frame_attitude(&reader, i))
-            .collect();
-        let positions: BTreeMap<usize, [f64; 3]> = poses
-            .iter()
-            .flatten()
-            .map(|(&f, p)| (f, p.position_m))
-            .collect();
-        let run = RunMessages {
-            candidates: &summary.candidates,
-            pairs: &pairs,
-            attitudes: &attitudes,
-            positions: &positions,
-            sweep: merged.as_deref(),
-            summary_json: &summary_json,
+        let outputs = RunOutputs {
+            groups: &groups,
+            computed: &computed,
+            images: &images,
+            poses: poses.as_ref(),
+            merged: merged.as_deref(),
         };
-        mcap_out::write(path, &reader, &run)
-            .with_context(|| format!("writing {}", path.display()))?;
+        write_mcap(path, &reader, &summary, &summary_json, &outputs)?;
     }
     if args.json {
         writeln!(out, "{}", serde_json::to_string_pretty(&summary)?)?;
@@ -464,15 +212,144 @@ pub fn run(args: &RunArgs, out: &mut impl Write) -> Result<()> {
     Ok(())
 }
 
+/// The ground truth `run` reads: `--gt`, else, for the bundled demo, its folder for the build's
+/// output grid (`gt/` for EPSSN-S); none for another recording without `--gt`.
+fn gt_dir(args: &RunOptions) -> Option<PathBuf> {
+    args.gt.clone().or_else(|| {
+        args.recording.is_none().then(|| {
+            demo_dir().join(epssn_spec::load::per_spec_name(
+                "gt",
+                epssn::config::SPEC_FILE_NAME,
+            ))
+        })
+    })
+}
+
+/// One group's depth maps and its ground truth, if any.
+struct Computed {
+    maps: DepthMaps,
+    gt: Option<(Vec<f32>, Vec<bool>)>,
+}
+
+/// Every group's depth maps, each pair's figure and clouds written to `args.out`. The library
+/// computes each group's features and depth in one call and hands the features back for the
+/// bit-exactness check.
+fn compute_groups(
+    args: &RunOptions,
+    model: &Model,
+    bundle: &weights::Bundle,
+    groups: &[Vec<usize>],
+    images: &BTreeMap<usize, Vec<u8>>,
+) -> Result<Vec<Computed>> {
+    let gt_dir = gt_dir(args);
+    let mut ws = Box::new(Workspace::new());
+    let mut computed = Vec::new();
+    for group in groups {
+        let views: Vec<&[u8]> = group.iter().map(|f| images[f].as_slice()).collect();
+        let maps = depth_maps(model, bundle, &views, &mut ws)
+            .with_context(|| format!("depth of frames {group:?}"))?;
+        let gt = match &gt_dir {
+            Some(dir) => load_gt(dir, group[0])?,
+            None => None,
+        };
+        let name = format!("frame{:04}", group[0]);
+        write_pair_outputs(&args.out, &name, &maps, gt.as_ref())?;
+        computed.push(Computed { maps, gt });
+    }
+    Ok(computed)
+}
+
+impl Summary {
+    /// The run's summary from its pairs' reports.
+    fn of(
+        recording: &Path,
+        weights_dir: &Path,
+        frames: &FrameViews,
+        details: Vec<PairReport>,
+        candidates: Vec<CandidateReport>,
+        warnings: Vec<String>,
+    ) -> Self {
+        let float: Vec<Metrics> = details.iter().filter_map(|d| d.float.clone()).collect();
+        let int8: Vec<Metrics> = details.iter().filter_map(|d| d.int8.clone()).collect();
+        Summary {
+            recording: recording.display().to_string(),
+            weights: weights_dir.display().to_string(),
+            pairs: details.len(),
+            pings_per_view: frames.pings_per_view,
+            float: Accuracy::of(&float),
+            int8: Accuracy::of(&int8),
+            int8_vs_float_mae: details.iter().map(|d| d.int8_vs_float_mae).sum::<f64>()
+                / details.len() as f64,
+            bit_exact: details.iter().all(|d| d.bit_exact),
+            details,
+            candidates,
+            residual_tolerance_deg: config::PAIR_RESIDUAL_TOLERANCE_DEG,
+            warnings,
+        }
+    }
+}
+
+/// What the run computed, as `--mcap` writes it.
+struct RunOutputs<'a> {
+    groups: &'a [Vec<usize>],
+    computed: &'a [Computed],
+    images: &'a BTreeMap<usize, Vec<u8>>,
+    poses: Option<&'a BTreeMap<usize, SitePose>>,
+    merged: Option<&'a [SonarPoint]>,
+}
+
+/// `--mcap`: the run as ROS 2 messages.
+fn write_mcap(
+    path: &Path,
+    reader: &ArisReader,
+    summary: &Summary,
+    summary_json: &str,
+    o: &RunOutputs,
+) -> Result<()> {
+    let pairs: Vec<PairMessages> = o
+        .groups
+        .iter()
+        .zip(o.computed)
+        .map(|(g, c)| PairMessages {
+            frames: g,
+            int8: &c.maps.int8,
+            float: &c.maps.float,
+            truth: c.gt.as_ref().map(|(d, _)| d.as_slice()),
+            polar: &o.images[&g[0]],
+        })
+        .collect();
+    // Every frame's attitude, bursts' other pings included: the transforms show the
+    // sonar's motion, not only the views the pairing kept.
+    let attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
+        .map(|i| frame_attitude(reader, i))
+        .collect();
+    let positions: BTreeMap<usize, [f64; 3]> = o
+        .poses
+        .iter()
+        .copied()
+        .flatten()
+        .map(|(&f, p)| (f, p.position_m))
+        .collect();
+    let run = RunMessages {
+        candidates: &summary.candidates,
+        pairs: &pairs,
+        attitudes: &attitudes,
+        positions: &positions,
+        sweep: o.merged,
+        summary_json,
+    };
+    mcap_out::write(path, reader, &run).with_context(|| format!("writing {}", path.display()))
+}
+
 /// `--frame world`: every placed pair's int8 cloud merged into `dir/world.ply`; `None`, with
 /// the reason among the warnings, when no pair can be placed. Pairs that cannot are named.
 fn world_cloud(
     dir: &Path,
-    clouds: &[(usize, Vec<epssn_mcap::msgs::SonarPoint>)],
+    clouds: &[(usize, Vec<SonarPoint>)],
     attitudes: &[Option<Attitude>],
     poses: Option<&BTreeMap<usize, SitePose>>,
     warnings: &mut Vec<String>,
-) -> Result<Option<Vec<epssn_mcap::msgs::SonarPoint>>> {
+) -> Result<Option<Vec<SonarPoint>>> {
     let refs: Vec<usize> = clouds.iter().map(|(f, _)| *f).collect();
     let placement = sweep::place(&refs, attitudes, poses);
     warnings.extend(placement.warnings.iter().cloned());
@@ -506,267 +383,9 @@ fn world_cloud(
     Ok(Some(merged))
 }
 
-/// The library's model of a blob, refused with the folder's name.
-fn model_of<'a>(blob: &'a [u8], weights_dir: &Path) -> Result<Model<'a>> {
-    Model::from_blob(blob)
-        .map_err(|e| anyhow::anyhow!("weights {} refused: {e:?}", weights_dir.display()))
-}
-
-/// The views the weights in `weights_dir` take (the blob's), as `run` uses them by default.
-pub fn blob_views(weights_dir: &Path) -> Result<usize> {
-    let path = weights_dir.join(weights::BLOB_FILE);
-    let blob = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(model_of(&blob, weights_dir)?.views())
-}
-
-/// A recording opened and grouped as `run` groups it, before any depth is computed.
-pub struct Pairing {
-    /// The recording.
-    pub reader: ArisReader,
-    frames: FrameViews,
-    /// The groups whose depth maps are computed, reference frame first.
-    pub groups: Vec<Vec<usize>>,
-    /// Every candidate with the pose gate's verdict (none with `--pair`).
-    pub candidates: Vec<CandidateReport>,
-    /// The recording's and the pairing's warnings.
-    pub warnings: Vec<String>,
-}
-
-/// Opens `recording` and forms its groups as `run` does: views from `args` (default
-/// `model_views`, the blob's), pings per view, pairing by roll and the pose gate, or the
-/// `--pair` pairs. Fails when no group is formed.
-pub fn pair_recording(
-    args: &PairingArgs,
-    model_views: usize,
-    weights_dir: &Path,
-    recording: &Path,
-) -> Result<Pairing> {
-    let views = args.views.unwrap_or(model_views);
-    ensure!(
-        (2..=config::MAX_VIEWS).contains(&views),
-        "--views must be 2..={}",
-        config::MAX_VIEWS
-    );
-    let reader = open_recording(recording, if args.pairs.is_empty() { views } else { 2 })?;
-    let mut warnings: Vec<String> = reader.warnings().to_vec();
-    let frames = FrameViews::of(args, &reader, weights_dir, recording, &mut warnings)?;
-    let (groups, candidates) = if args.pairs.is_empty() {
-        pair_by_pose(&frames, views, &mut warnings)
-    } else {
-        (
-            given_pairs(args, &reader, views, &mut warnings)?,
-            Vec::new(),
-        )
-    };
-    if groups.is_empty() {
-        bail!(no_pairs_message(recording, &candidates));
-    }
-    Ok(Pairing {
-        reader,
-        frames,
-        groups,
-        candidates,
-        warnings,
-    })
-}
-
-/// Opens a recording that fits the model and holds at least `needed` frames.
-fn open_recording(recording: &Path, needed: usize) -> Result<ArisReader> {
-    let reader =
-        ArisReader::open(recording).with_context(|| format!("opening {}", recording.display()))?;
-    if let Some(why) = polar::geometry_mismatch(&reader)? {
-        bail!(
-            "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
-             wrong, so nothing was computed.",
-            recording.display(),
-            config::SPEC_NAME
-        );
-    }
-    // Too few frames for one depth map: the reader's warnings (truncation, FrameCount) say why.
-    if reader.frame_count() < needed {
-        let warnings = reader.warnings();
-        bail!(
-            "{} holds {} complete frame(s), a depth map needs {needed}{}",
-            recording.display(),
-            reader.frame_count(),
-            if warnings.is_empty() {
-                String::new()
-            } else {
-                format!(": {}", warnings.join("; "))
-            }
-        );
-    }
-    Ok(reader)
-}
-
-/// Each frame's roll and attitude, and the bursts of pings averaged into one view.
-struct FrameViews {
-    rolls: Vec<Option<f64>>,
-    attitudes: Vec<Option<Attitude>>,
-    bursts: BTreeMap<usize, Vec<usize>>,
-    pings_per_view: u32,
-}
-
-impl FrameViews {
-    fn of(
-        args: &PairingArgs,
-        reader: &ArisReader,
-        weights_dir: &Path,
-        recording: &Path,
-        warnings: &mut Vec<String>,
-    ) -> Result<Self> {
-        let mut rolls: Vec<Option<f64>> = (0..reader.frame_count())
-            .map(|i| frame_roll(reader, i))
-            .collect();
-        let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
-            .map(|i| frame_attitude(reader, i))
-            .collect();
-        let trained_pings = weights::trained_pings_per_view(weights_dir);
-        let pings_per_view = args.pings_per_view.or(trained_pings).unwrap_or(1);
-        ensure!(
-            (1..=u32::from(ping_average::MAX_PINGS)).contains(&pings_per_view),
-            "--pings-per-view must be 1..={}",
-            ping_average::MAX_PINGS
-        );
-        if let Some(m) = trained_pings {
-            if m != pings_per_view {
-                warnings.push(format!(
-                    "the weights were trained on {m} ping(s) per view and this run averages \
-                     {pings_per_view}: expect them to read worse than their accuracy"
-                ));
-            }
-        }
-        // Each burst of pings is one view, named by its first frame: the other frames lose
-        // their roll and attitude so pairing sees only the bursts.
-        let bursts = ping_bursts(&rolls, pings_per_view as usize);
-        if pings_per_view > 1 {
-            ensure!(
-                args.pairs.is_empty(),
-                "--pair pairs single frames; with --pings-per-view {pings_per_view} pairing is by roll"
-            );
-            let in_bursts: usize = bursts.values().map(Vec::len).sum();
-            let skipped = reader.frame_count() - in_bursts;
-            if skipped > 0 {
-                warnings.push(format!(
-                    "{skipped} frame(s) not in a run of {pings_per_view} pings at one roll were skipped"
-                ));
-            }
-            ensure!(
-                !bursts.is_empty(),
-                "{} holds no run of {pings_per_view} consecutive frames at one roll (±{} °): \
-                 nothing to average (give --pings-per-view 1 for single pings)",
-                recording.display(),
-                config::PAIR_TOLERANCE_DEG
-            );
-            for i in 0..rolls.len() {
-                if !bursts.contains_key(&i) {
-                    rolls[i] = None;
-                    attitudes[i] = None;
-                }
-            }
-        }
-        Ok(FrameViews {
-            rolls,
-            attitudes,
-            bursts,
-            pings_per_view,
-        })
-    }
-
-    /// The frames a view averages: its burst, or the frame alone (`--pair`, no roll).
-    fn pings_of(&self, f: usize) -> Vec<usize> {
-        self.bursts.get(&f).cloned().unwrap_or_else(|| vec![f])
-    }
-}
-
-/// Groups paired by rotator roll and passed by the pose gate, and every candidate's verdict.
-fn pair_by_pose(
-    frames: &FrameViews,
-    views: usize,
-    warnings: &mut Vec<String>,
-) -> (Vec<Vec<usize>>, Vec<CandidateReport>) {
-    let candidates: Vec<CandidateReport> = pair_by_roll(&frames.rolls, views)
-        .iter()
-        .map(|g| gate(g, &frames.rolls, &frames.attitudes))
-        .collect();
-    let rejected = candidates.iter().filter(|c| !c.accepted).count();
-    if rejected > 0 {
-        warnings.push(format!(
-            "{rejected} candidate pair(s) rejected by the pose gate (see candidates)"
-        ));
-    }
-    if candidates.iter().any(|c| c.reason == "roll_only") {
-        warnings
-            .push("frames without attitude paired by the roll-only rule (reason roll_only)".into());
-    }
-    let groups = candidates
-        .iter()
-        .filter(|c| c.accepted)
-        .map(|c| c.frames.clone())
-        .collect();
-    (groups, candidates)
-}
-
-/// The pairs given with `--pair`, checked against the recording.
-fn given_pairs(
-    args: &PairingArgs,
-    reader: &ArisReader,
-    views: usize,
-    warnings: &mut Vec<String>,
-) -> Result<Vec<Vec<usize>>> {
-    ensure!(
-        views == 2,
-        "--pair gives two-view pairs, and these weights take {views} views"
-    );
-    warnings.push(format!(
-        "pairs given by index: the roll between them is assumed to be the {} ° baseline",
-        config::ROLL_STEP_DEG
-    ));
-    for &(a, b) in &args.pairs {
-        ensure!(
-            a < reader.frame_count() && b < reader.frame_count(),
-            "pair {a}:{b}: the recording has {} frames",
-            reader.frame_count()
-        );
-    }
-    Ok(args.pairs.iter().map(|&(a, b)| vec![a, b]).collect())
-}
-
-/// Why no depth map can be made: the baseline, its tolerances and every rejected candidate.
-fn no_pairs_message(recording: &Path, candidates: &[CandidateReport]) -> String {
-    format!(
-        "no frames of {} pair at the {} ° roll baseline (±{} °, residual ≤ {} °){}; give \
-         --pair REF:SRC for recordings without rotator roll",
-        recording.display(),
-        config::ROLL_STEP_DEG,
-        config::PAIR_TOLERANCE_DEG,
-        config::PAIR_RESIDUAL_TOLERANCE_DEG,
-        if candidates.is_empty() {
-            String::new()
-        } else {
-            format!(
-                ": the pose gate rejected all {} candidates ({})",
-                candidates.len(),
-                candidates
-                    .iter()
-                    .map(|c| format!(
-                        "{:?} {} roll {:.3}° residual {}",
-                        c.frames,
-                        c.reason,
-                        c.roll_deg,
-                        c.residual_deg
-                            .map_or_else(|| "n/a".into(), |r| format!("{r:.3}°"))
-                    ))
-                    .collect::<Vec<_>>()
-                    .join("; ")
-            )
-        }
-    )
-}
-
 /// The polar image of every frame the groups use, each computed once (its pings averaged).
 fn polar_images(
-    args: &RunArgs,
+    args: &RunOptions,
     reader: &ArisReader,
     frames: &FrameViews,
     groups: &[Vec<usize>],
@@ -970,14 +589,12 @@ fn print_summary(s: &Summary, weights: &str, dir: &Path, out: &mut impl Write) -
     Ok(())
 }
 
-/// Arguments of `host-sim bundle`.
-#[derive(clap::Args, Debug)]
-pub struct BundleArgs {
+/// Options of `host-sim bundle`.
+#[derive(Debug)]
+pub struct BundleOptions {
     /// Simulated sample folders (`DIR/<split>/<index>/`), in the order to record them.
-    #[arg(required = true)]
     pub samples: Vec<PathBuf>,
     /// Output folder: `recording.aris`, `gt/` and, for samples of one site, `poses.csv`.
-    #[arg(long)]
     pub out: PathBuf,
 }
 
@@ -1004,7 +621,7 @@ fn common_site(scenes: &[&epssn_sim::scene::Scene]) -> Option<(String, String)> 
 /// reference frame in `gt/depth_<frame>.npy` and `gt/mask_<frame>.npy`. When every sample was
 /// drawn in one site, `poses.csv` gives each frame's pose in the site frame (`label` reads it);
 /// procedural samples each have a world of their own, so no one file of poses describes them.
-pub fn bundle(args: &BundleArgs, out: &mut impl Write) -> Result<()> {
+pub fn bundle(args: &BundleOptions, out: &mut impl Write) -> Result<()> {
     let gt = args.out.join("gt");
     std::fs::create_dir_all(&gt)?;
     let mut frames: Vec<(epssn_aris::aris::FrameHeader, Vec<u8>)> = Vec::new();

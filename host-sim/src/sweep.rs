@@ -17,7 +17,7 @@ use epssn_mcap::msgs::SonarPoint;
 use epssn_sim::poses::SitePose;
 
 /// The frame `run` writes its clouds in.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum CloudFrame {
     /// Each pair in its reference view's own sonar frame (a PLY per pair).
     #[default]

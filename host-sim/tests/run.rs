@@ -128,7 +128,7 @@ fn real_aris1200_recording_is_refused_with_an_explanation() {
 
 #[test]
 fn pairing_by_roll_follows_the_baseline_and_tolerance() {
-    use host_sim::run::pair_by_roll;
+    use host_sim::pairing::pair_by_roll;
     let rolls = [
         Some(0.0),
         Some(7.2),
@@ -230,7 +230,7 @@ fn a_jittered_recording_pairs_exactly_the_pairs_within_the_residual_tolerance() 
 
 #[test]
 fn ping_bursts_are_runs_of_frames_at_one_roll() {
-    use host_sim::run::ping_bursts;
+    use host_sim::pairing::ping_bursts;
     let rolls = [
         Some(0.0),
         Some(0.1),

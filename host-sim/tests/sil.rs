@@ -67,7 +67,8 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     let stack = r["stack_high_water_bytes"].as_u64().unwrap();
     assert!(stack > 0 && ram > stack, "ram {ram} stack {stack}");
     // The budgets of weights/budgets.json (which `host-sim sil` itself enforces).
-    let b = epssn_sil::budgets::Budgets::load(&epssn_sil::budgets::default_path()).unwrap();
+    let b =
+        epssn_sil_core::budgets::Budgets::load(&epssn_sil_core::budgets::default_path()).unwrap();
     assert!(ram <= b.ram_bytes, "RAM budget: {ram}");
     assert!(flash > 0 && flash <= b.flash_bytes, "flash budget: {flash}");
     assert!(
@@ -109,7 +110,11 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
     // The fault campaign: every class sent, answered with its code and recovered from, then
     // the frames again after a hello, bit-exact.
     let classes = faults["classes"].as_object().unwrap();
-    assert_eq!(classes.len(), epssn_sil::faults::CLASSES.len(), "{faults}");
+    assert_eq!(
+        classes.len(),
+        epssn_sil_core::faults::CLASSES.len(),
+        "{faults}"
+    );
     for (name, c) in classes {
         assert_eq!(c["sent"], 1, "{name}: {c}");
         assert_eq!(c["answered_expected"], 1, "{name}: {c}");
@@ -123,7 +128,7 @@ fn sil_is_bit_exact_and_firmware_survives_fuzz() {
 /// `sil --mcap`: every frame streamed and every map the device returned, stamped with the ARIS
 /// frame times, the maps' values inside the reach of the end bins, and the report itself.
 fn device_mcap_holds_the_stream_and_the_maps(path: &std::path::Path, report: &serde_json::Value) {
-    use epssn_sil::mcap_out::topic;
+    use epssn_sil_core::mcap_out::topic;
     let bytes = std::fs::read(path).unwrap();
     let mut by_topic: std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> = Default::default();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
@@ -225,7 +230,7 @@ fn short_soak_keeps_maps_bit_exact_and_the_stack_unchanged() {
     // The same table as the campaign: every class sent once per block, answered, recovered.
     let f = &r["faults"];
     let classes = f["classes"].as_object().unwrap();
-    assert_eq!(classes.len(), epssn_sil::faults::CLASSES.len(), "{f}");
+    assert_eq!(classes.len(), epssn_sil_core::faults::CLASSES.len(), "{f}");
     for (name, c) in classes {
         assert_eq!(c["sent"].as_u64(), Some(blocks), "{name}: {c}");
         assert_eq!(c["answered_expected"], c["sent"], "{name}: {c}");

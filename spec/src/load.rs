@@ -178,9 +178,9 @@ pub fn per_spec_name(name: &str, spec_file: &str) -> String {
 }
 
 /// A directory kept per configuration below `dir`: `dir` itself for the default spec,
-/// `dir/<spec file stem>` for any other. Cargo target directories: the firmware of EPSSN-S
-/// builds in `firmware/target`, EPSSN-P's in `firmware/target/epssn-p`, so neither build
-/// rebuilds the other's artefacts.
+/// `dir/<spec file stem>` for any other. Cargo target directories: the Cortex-M7 firmware of
+/// EPSSN-S builds in `boards/mps2-an500/target`, EPSSN-P's in
+/// `boards/mps2-an500/target/epssn-p`, so neither build rebuilds the other's artefacts.
 pub fn per_spec_dir(dir: &Path, spec_file: &str) -> PathBuf {
     match non_default_stem(spec_file) {
         None => dir.to_path_buf(),
@@ -262,7 +262,7 @@ mod tests {
 
     #[test]
     fn per_spec_dirs_keep_the_default_dir_for_epssn_s() {
-        let d = Path::new("firmware/target");
+        let d = Path::new("boards/mps2-an500/target");
         assert_eq!(per_spec_dir(d, DEFAULT_SPEC_FILE), d);
         assert_eq!(per_spec_dir(d, "epssn-p.json"), d.join("epssn-p"));
         // The same rule as the names: the default keeps the plain one, others add the stem.

@@ -1,11 +1,16 @@
-//! The Arm CMSDK peripherals the QEMU boards share, at the addresses each board gives: the APB
-//! UART (polled, through `embedded_io`), an FPGA IO LED bit (through `embedded_hal`), and the
-//! semihosting command line. `firmware/` (MPS2-AN500, Cortex-M7) and `boards/mps3-an547`
-//! (Cortex-M55) use the same peripherals at different addresses; this crate is their one copy.
+//! What the QEMU boards share: the Arm CMSDK peripherals at the addresses each board gives
+//! (the APB UART, polled, through `embedded_io`; an FPGA IO LED bit, through `embedded_hal`;
+//! any peripheral's registers by offset, [`Registers`]), the semihosting command line, and
+//! their main ([`boot::run`]: the boot self-test, then the link server). `boards/mps2-an500`
+//! (Cortex-M7) and `boards/mps3-an547` (Cortex-M55) have the same peripherals at different
+//! addresses; this crate is their one copy, and their crates hold only what differs (clock,
+//! watchdog, addresses).
 
 #![no_std]
 #![deny(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]
+
+pub mod boot;
 
 use core::ptr::{read_volatile, write_volatile};
 
@@ -22,13 +27,39 @@ const CTRL_RX_EN: u32 = 1 << 1;
 
 fn write_reg(addr: usize, value: u32) {
     // SAFETY: every caller passes a register of a peripheral whose constructor's contract
-    // (below) says it is present, aligned and owned by this firmware alone.
+    // (`Registers::new`, `Uart::new`, `FpgaLed::new`) says it is present, aligned and owned by
+    // this firmware alone.
     unsafe { write_volatile(addr as *mut u32, value) }
 }
 
 fn read_reg(addr: usize) -> u32 {
     // SAFETY: as in `write_reg`.
     unsafe { read_volatile(addr as *const u32) }
+}
+
+/// The 32-bit registers of a peripheral block at `BASE`, by offset from it: volatile reads and
+/// writes, at the fixed addresses a hand-written driver would use.
+pub struct Registers<const BASE: usize>(());
+
+impl<const BASE: usize> Registers<BASE> {
+    /// # Safety
+    ///
+    /// `BASE` is the address of a peripheral block of this board that nothing else drives, and
+    /// every offset its owner passes to [`Registers::read`] and [`Registers::write`] is one of
+    /// that block's registers (present and word-aligned).
+    pub const unsafe fn new() -> Self {
+        Registers(())
+    }
+
+    /// Writes `value` to the register at `offset`.
+    pub fn write(&self, offset: usize, value: u32) {
+        write_reg(BASE + offset, value);
+    }
+
+    /// Reads the register at `offset`.
+    pub fn read(&self, offset: usize) -> u32 {
+        read_reg(BASE + offset)
+    }
 }
 
 /// A CMSDK APB UART at `BASE`, polled: one byte in each direction at a time. The base is a

@@ -1,16 +1,15 @@
-//! The MPS3-AN547 peripherals the Cortex-M55 firmware uses (the SSE-300 system counter, the
-//! CMSDK APB UART and the FPGA IO LED register), its stack region and the semihosting command
-//! line: the only place with raw register and memory access. Addresses from QEMU 7.2's
-//! `hw/arm/mps2-tz.c` (AN547 PPC ports) and `hw/arm/armsse.c` (SSE-300): the SAU is off, so
-//! every access is Secure and the Non-secure aliases (0x4xxx_xxxx) reach the devices, which the
-//! PPCs leave Secure at reset. The rest of the firmware is `firmware/`'s, unchanged.
+//! What the MPS3-AN547 has of its own under the QEMU boards' shared main
+//! (`epssn_cmsdk::boot`): the addresses of its CMSDK peripherals and its clock (the SSE-300
+//! system counter). Addresses from QEMU 7.2's `hw/arm/mps2-tz.c` (AN547 PPC ports) and
+//! `hw/arm/armsse.c` (SSE-300): the SAU is off, so every access is Secure and the Non-secure
+//! aliases (0x4xxx_xxxx) reach the devices, which the PPCs leave Secure at reset.
 
-use core::ptr::{read_volatile, write_volatile};
-
-use epssn_selftest::Stack;
+use epssn_cmsdk::Registers;
 
 /// SSE-300 system counter, control frame (Secure only): CNTCR, CNTCV, CNTSCR.
-const SYSCTR: usize = 0x5810_0000;
+// SAFETY: 0x5810_0000 is the SSE-300 system counter's control frame (the offsets below);
+// only `TickCounter` drives it.
+const SYSCTR: Registers<0x5810_0000> = unsafe { Registers::new() };
 const CNTCR: usize = 0x0;
 const CNTCV_LO: usize = 0x8;
 const CNTSCR: usize = 0x10;
@@ -23,19 +22,9 @@ const NS_PER_MAINCLK_8_24: u32 = 0x1F40_0000;
 const FPGAIO_LED: usize = 0x4930_2000;
 /// CMSDK APB UART 0 (QEMU connects it to the first `-serial`).
 const UART0: usize = 0x4930_3000;
-/// Start of the DTCM (the RAM region of memory.x).
-const RAM_ORIGIN: usize = 0x2000_0000;
 
-fn write_reg(addr: usize, value: u32) {
-    // SAFETY: `addr` is one of the fixed, aligned MMIO registers above, present on the
-    // MPS3-AN547; the firmware is single-threaded and owns every peripheral.
-    unsafe { write_volatile(addr as *mut u32, value) }
-}
-
-fn read_reg(addr: usize) -> u32 {
-    // SAFETY: as in `write_reg`.
-    unsafe { read_volatile(addr as *const u32) }
-}
+/// The peripherals the shared main drives, at this board's addresses.
+pub type Peripherals = epssn_cmsdk::boot::Peripherals<UART0, FPGAIO_LED>;
 
 /// A free-running instruction counter on the SSE-300 system counter.
 ///
@@ -48,47 +37,25 @@ impl TickCounter {
     /// Starts the counter from zero with the nanosecond scale (the scale is written while
     /// the counter is stopped, as the SSE-300 requires).
     pub fn start() -> Self {
-        write_reg(SYSCTR + CNTCR, 0);
-        write_reg(SYSCTR + CNTSCR, NS_PER_MAINCLK_8_24);
-        write_reg(SYSCTR + CNTCV_LO, 0);
-        write_reg(SYSCTR + CNTCV_LO + 4, 0);
-        write_reg(SYSCTR + CNTCR, CNTCR_EN | CNTCR_SCEN);
+        SYSCTR.write(CNTCR, 0);
+        SYSCTR.write(CNTSCR, NS_PER_MAINCLK_8_24);
+        SYSCTR.write(CNTCV_LO, 0);
+        SYSCTR.write(CNTCV_LO + 4, 0);
+        SYSCTR.write(CNTCR, CNTCR_EN | CNTCR_SCEN);
         TickCounter
     }
+}
+
+/// The board under the shared main: no watchdog or fault record (yet), only its clock.
+impl epssn_cmsdk::boot::Board for TickCounter {
+    /// The counter is scaled to count instructions.
+    const INSTRUCTIONS_PER_TICK: u32 = 1;
+    /// 100 ms of virtual time, one tick per nanosecond.
+    const IDLE_TICKS: u32 = 100_000_000;
 
     /// Instructions since start (the low word of the count: wraps after 2^32, about 4.3 s of
     /// virtual time; the callers take wrapping differences over far shorter spans).
-    pub fn now(&self) -> u32 {
-        read_reg(SYSCTR + CNTCV_LO)
+    fn now(&self) -> u32 {
+        SYSCTR.read(CNTCV_LO)
     }
-
-    /// Instructions per tick of [`TickCounter::now`]: the counter is scaled to count them.
-    pub const INSTRUCTIONS_PER_TICK: u32 = 1;
-}
-
-/// LED0 of the board, lit while the co-processor is computing a depth map.
-pub type BusyLed = epssn_cmsdk::FpgaLed<FPGAIO_LED>;
-
-/// The busy LED.
-pub fn busy_led() -> BusyLed {
-    // SAFETY: FPGAIO_LED is this board's FPGA IO LED register; only this firmware drives it.
-    unsafe { BusyLed::new() }
-}
-
-/// UART0 of the board (CMSDK APB UART; QEMU connects it to the first `-serial`).
-pub type Uart0 = epssn_cmsdk::Uart<UART0>;
-
-/// UART0, enabled.
-pub fn uart0() -> Uart0 {
-    // SAFETY: UART0 is this board's CMSDK APB UART 0; only the serving loop drives it.
-    unsafe { Uart0::new() }
-}
-
-pub use epssn_cmsdk::command_line_has;
-
-/// The stack, for its paint and high-water mark (the implementation every board shares).
-pub fn stack() -> Stack {
-    // SAFETY: RAM_ORIGIN is the origin of memory.x's RAM region, which cortex-m-rt (through
-    // flip-link) puts this image's stack in.
-    unsafe { Stack::new(RAM_ORIGIN) }
 }

@@ -1,6 +1,6 @@
-//! The boot self-test every epssn board runs (the QEMU `mps2-an500` firmware in `firmware/`,
-//! the STM32H743 module in `boards/stm32h743/`), board-independent: the board hands in a log
-//! sink, its clock and its busy LED.
+//! The boot self-test every epssn board runs (the QEMU boards `boards/mps2-an500/` and
+//! `boards/mps3-an547/`, the STM32H743 module in `boards/stm32h743/`), board-independent: the
+//! board hands in a log sink, its clock and its busy LED.
 //!
 //! It checks, on the target, what the host already checked at build time (`build.rs`):
 //! - the warp tables in flash equal a recomputation from the same geometry code;

@@ -845,6 +845,110 @@ fn check_signature(raw: &[u8; HEADER_LEN], what: &str) -> Result<()> {
     Ok(())
 }
 
+/// Beams per frame: PingMode and NumRawBeams must agree when both are meaningful; when one
+/// is not, the other is used with a warning.
+fn beam_count(
+    file_header: &FileHeader,
+    first: &FrameHeader,
+    warnings: &mut Vec<String>,
+) -> Result<usize> {
+    let header_beams = file_header.num_raw_beams;
+    let header_beams_ok = VALID_BEAM_COUNTS
+        .iter()
+        .any(|&b| b as u64 == u64::from(header_beams));
+    Ok(match (first.ping_mode_beams(), header_beams_ok) {
+        (Some(p), true) if p as u64 != u64::from(header_beams) => {
+            return Err(ArisError::PingModeMismatch {
+                ping_mode: first.ping_mode,
+                ping_beams: p,
+                header_beams,
+            })
+        }
+        (Some(p), ok) => {
+            if !ok {
+                warnings.push(format!(
+                    "file header NumRawBeams is {header_beams}; using {p} beams from frame 0 PingMode {}",
+                    first.ping_mode
+                ));
+            }
+            p
+        }
+        (None, true) => {
+            warnings.push(format!(
+                "frame 0 PingMode {} names no beam count; using the file header's NumRawBeams {header_beams}",
+                first.ping_mode
+            ));
+            header_beams as usize // one of VALID_BEAM_COUNTS
+        }
+        (None, false) => {
+            return Err(ArisError::BadBeamCount {
+                ping_mode: first.ping_mode,
+                num_raw_beams: header_beams,
+            })
+        }
+    })
+}
+
+/// Complete frames of `frame_len` bytes in a source of `source_len` bytes, with warnings for
+/// a truncated last frame and a file header whose FrameCount or FileSize disagree.
+fn count_frames(
+    file_header: &FileHeader,
+    source_len: u64,
+    frame_len: u64,
+    warnings: &mut Vec<String>,
+) -> Result<usize> {
+    let body = source_len.saturating_sub(HEADER_LEN as u64); // ≥ 1024 here
+    let complete = body / frame_len;
+    let remainder = body % frame_len;
+    let frame_count = usize::try_from(complete)
+        .map_err(|_| ArisError::SizeOverflow(format!("{complete} frames")))?;
+    if remainder != 0 {
+        warnings.push(format!(
+            "truncated last frame: {remainder} trailing bytes of a {frame_len}-byte frame \
+             ignored ({} bytes missing); {frame_count} complete frames kept",
+            frame_len - remainder
+        ));
+    }
+    if u64::from(file_header.frame_count) != complete {
+        warnings.push(format!(
+            "file header FrameCount is {}, but the file holds {frame_count} complete frames \
+             ({} missing)",
+            file_header.frame_count,
+            u64::from(file_header.frame_count).abs_diff(complete)
+        ));
+    }
+    if file_header.file_size != source_len {
+        warnings.push(format!(
+            "file header FileSize is {}, but the file has {source_len} bytes",
+            file_header.file_size
+        ));
+    }
+    Ok(frame_count)
+}
+
+/// The warning for a recording whose system, lens and beams are not the model's ARIS 3000 /
+/// 128-beam geometry (or have no beam table); `None` when they are.
+fn geometry_warning(first: &FrameHeader, beams: usize) -> Option<String> {
+    match beam_table_for(first.system_type, beams, first.telephoto()) {
+        Ok(t) if t.name == "ARIS3000_128" => None,
+        Ok(t) => Some(format!(
+            "geometry: {}{}, {beams} beams (beam table {}, {:.2}° … {:.2}°) is not the \
+             ARIS 3000 / 128-beam geometry of the epssn model; depth from this recording \
+             would use mismatched geometry",
+            first.system_type,
+            if first.telephoto() {
+                ", telephoto lens"
+            } else {
+                ""
+            },
+            t.name,
+            t.centre_span_deg().0,
+            t.centre_span_deg().1,
+        )),
+        Err(e) => Some(format!("geometry: {e}")),
+    }
+}
+
 impl<R: Read + Seek> ArisReader<R> {
     /// Validates a recording held by any seekable source (a file, a `Cursor<Vec<u8>>`).
     pub fn new(mut source: R) -> Result<Self> {
@@ -863,44 +967,7 @@ impl<R: Read + Seek> ArisReader<R> {
         }
         let first = FrameHeader::from_bytes(&raw);
         let mut warnings = Vec::new();
-
-        // Beams: PingMode and NumRawBeams must agree when both are meaningful.
-        let header_beams = file_header.num_raw_beams;
-        let header_beams_ok = VALID_BEAM_COUNTS
-            .iter()
-            .any(|&b| b as u64 == u64::from(header_beams));
-        let beams = match (first.ping_mode_beams(), header_beams_ok) {
-            (Some(p), true) if p as u64 != u64::from(header_beams) => {
-                return Err(ArisError::PingModeMismatch {
-                    ping_mode: first.ping_mode,
-                    ping_beams: p,
-                    header_beams,
-                })
-            }
-            (Some(p), ok) => {
-                if !ok {
-                    warnings.push(format!(
-                        "file header NumRawBeams is {header_beams}; using {p} beams from frame 0 PingMode {}",
-                        first.ping_mode
-                    ));
-                }
-                p
-            }
-            (None, true) => {
-                warnings.push(format!(
-                    "frame 0 PingMode {} names no beam count; using the file header's NumRawBeams {header_beams}",
-                    first.ping_mode
-                ));
-                header_beams as usize // one of VALID_BEAM_COUNTS
-            }
-            (None, false) => {
-                return Err(ArisError::BadBeamCount {
-                    ping_mode: first.ping_mode,
-                    num_raw_beams: header_beams,
-                })
-            }
-        };
-
+        let beams = beam_count(&file_header, &first, &mut warnings)?;
         let samples = first.samples_per_beam;
         if samples == 0 || samples as usize > MAX_SAMPLES_PER_BEAM {
             return Err(ArisError::BadSampleCount {
@@ -915,38 +982,11 @@ impl<R: Read + Seek> ArisReader<R> {
                 file_header.samples_per_channel
             ));
         }
-
         let frame_len = (beams as u64)
             .checked_mul(samples_per_beam as u64)
             .and_then(|d| d.checked_add(HEADER_LEN as u64))
             .ok_or_else(|| ArisError::SizeOverflow("frame size".into()))?;
-        let body = source_len.saturating_sub(HEADER_LEN as u64); // ≥ 1024 here
-        let complete = body / frame_len;
-        let remainder = body % frame_len;
-        let frame_count = usize::try_from(complete)
-            .map_err(|_| ArisError::SizeOverflow(format!("{complete} frames")))?;
-        if remainder != 0 {
-            warnings.push(format!(
-                "truncated last frame: {remainder} trailing bytes of a {frame_len}-byte frame \
-                 ignored ({} bytes missing); {frame_count} complete frames kept",
-                frame_len - remainder
-            ));
-        }
-        if u64::from(file_header.frame_count) != complete {
-            warnings.push(format!(
-                "file header FrameCount is {}, but the file holds {frame_count} complete frames \
-                 ({} missing)",
-                file_header.frame_count,
-                u64::from(file_header.frame_count).abs_diff(complete)
-            ));
-        }
-        if file_header.file_size != source_len {
-            warnings.push(format!(
-                "file header FileSize is {}, but the file has {source_len} bytes",
-                file_header.file_size
-            ));
-        }
-
+        let frame_count = count_frames(&file_header, source_len, frame_len, &mut warnings)?;
         let mut tally = Tally::default();
         check_frame(&first, &first, 0, beams, samples, &mut tally);
         let mut previous_time_us = first.frame_time_us;
@@ -969,26 +1009,9 @@ impl<R: Read + Seek> ArisReader<R> {
             previous_time_us = h.frame_time_us;
         }
         tally.into_warnings(frame_count.max(1), &mut warnings);
-
-        match beam_table_for(first.system_type, beams, first.telephoto()) {
-            Ok(t) if t.name == "ARIS3000_128" => {}
-            Ok(t) => warnings.push(format!(
-                "geometry: {}{}, {beams} beams (beam table {}, {:.2}° … {:.2}°) is not the \
-                 ARIS 3000 / 128-beam geometry of the epssn model; depth from this recording \
-                 would use mismatched geometry",
-                first.system_type,
-                if first.telephoto() {
-                    ", telephoto lens"
-                } else {
-                    ""
-                },
-                t.name,
-                t.centre_span_deg().0,
-                t.centre_span_deg().1,
-            )),
-            Err(e) => warnings.push(format!("geometry: {e}")),
+        if let Some(w) = geometry_warning(&first, beams) {
+            warnings.push(w);
         }
-
         Ok(Self {
             source: Mutex::new(source),
             source_len,

@@ -8,13 +8,12 @@ use serde::Serialize;
 
 use crate::aris::{ArisReader, FrameHeader};
 
-/// Arguments of `host-sim inspect`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct InspectArgs {
+/// Options of `host-sim inspect`.
+#[derive(Debug, Clone)]
+pub struct InspectOptions {
     /// The .aris recording.
     pub file: PathBuf,
     /// Print machine-readable JSON instead of text (NaN fields become null).
-    #[arg(long)]
     pub json: bool,
 }
 
@@ -278,7 +277,7 @@ pub fn write_text(r: &InspectReport, out: &mut dyn Write) -> std::io::Result<()>
 }
 
 /// Runs the subcommand, printing to `out`.
-pub fn run(args: &InspectArgs, out: &mut dyn Write) -> anyhow::Result<()> {
+pub fn run(args: &InspectOptions, out: &mut dyn Write) -> anyhow::Result<()> {
     let r = report(&args.file)?;
     if args.json {
         serde_json::to_writer_pretty(&mut *out, &r)?;

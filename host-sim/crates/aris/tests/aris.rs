@@ -61,7 +61,7 @@ fn run_cli(args: &[&str]) -> Output {
     assert_eq!(args[0], "inspect");
     let json = args.contains(&"--json");
     let file = args[1..].iter().find(|a| **a != "--json").expect("a file");
-    let args = epssn_aris::inspect::InspectArgs {
+    let args = epssn_aris::inspect::InspectOptions {
         file: PathBuf::from(file),
         json,
     };

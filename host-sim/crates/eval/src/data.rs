@@ -1,20 +1,14 @@
-//! Simulated sample folders for training and evaluation.
+//! Simulated sample folders for training and evaluation, as the network takes them.
 //!
 //! `DIR/<split>/<000000>/` holds `polar_view{k}.npy` (f32 R×B, values 0..=255), `depth.npy`
-//! and `mask.npy` (f32 E×A). The polar images are rounded and clamped to u8 on load, because the
-//! firmware only ever sees u8 images.
-//!
-//! Arrays are read with [`epssn_aris::npy`].
+//! and `mask.npy` (f32 E×A). The folders are read by [`epssn_sim::dataset`] (the one reader of
+//! sample folders), at the shapes of the spec being trained or evaluated; the polar images are
+//! rounded and clamped to u8 on load, because the firmware only ever sees u8 images.
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{ensure, Context, Result};
-
-/// Reads a little-endian f32 C-order `.npy` file: (shape, values).
-pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
-    let a = epssn_aris::npy::read_f32(path)?;
-    Ok((a.shape, a.data))
-}
+use anyhow::Result;
+use epssn_sim::dataset::{polar_u8, sample_dirs_in, Arrays};
 
 /// One training / evaluation sample.
 #[derive(Clone, Debug)]
@@ -29,16 +23,6 @@ pub struct Sample {
     pub dir: PathBuf,
 }
 
-fn load_2d(path: &Path, shape: [usize; 2]) -> Result<Vec<f32>> {
-    let (s, v) = read_npy_f32(path)?;
-    ensure!(
-        s == shape,
-        "{} has shape {s:?}, expected {shape:?}",
-        path.display()
-    );
-    Ok(v)
-}
-
 /// Loads one sample folder with `views` views (1 loads only the reference).
 pub fn load_sample(
     dir: &Path,
@@ -46,32 +30,13 @@ pub fn load_sample(
     input: (usize, usize),
     output: (usize, usize),
 ) -> Result<Sample> {
-    let mut imgs = Vec::new();
-    for k in 0..views {
-        let v = load_2d(&dir.join(format!("polar_view{k}.npy")), [input.0, input.1])?;
-        imgs.push(
-            v.iter()
-                .map(|&x| x.round().clamp(0.0, 255.0) as u8)
-                .collect(),
-        );
-    }
+    let a = Arrays::load(dir, views, [input.0, input.1], [output.0, output.1])?;
     Ok(Sample {
-        views: imgs,
-        depth: load_2d(&dir.join("depth.npy"), [output.0, output.1])?,
-        mask: load_2d(&dir.join("mask.npy"), [output.0, output.1])?,
+        views: a.polar_views.iter().map(|v| polar_u8(v)).collect(),
+        depth: a.depth,
+        mask: a.mask,
         dir: dir.to_path_buf(),
     })
-}
-
-/// Sample folders of `dir` (sub-folders holding `polar_view0.npy`), sorted by name.
-pub fn sample_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot list {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.join("polar_view0.npy").is_file())
-        .collect();
-    v.sort();
-    Ok(v)
 }
 
 /// The folder of `split` under `data` (`data/<split>`), if it exists.
@@ -88,7 +53,7 @@ pub fn load_dir(
     output: (usize, usize),
     limit: Option<usize>,
 ) -> Result<Vec<Sample>> {
-    let mut dirs = sample_dirs(dir)?;
+    let mut dirs = sample_dirs_in(dir)?;
     if let Some(l) = limit {
         dirs.truncate(l);
     }

@@ -4,45 +4,36 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
-use clap::Args;
 use epssn_reference::{floatref, weights};
 use epssn_sim::metrics::{self, Accuracy, ErrorBreakdown, Metrics};
 
 use crate::data::{load_dir, split_dir, Sample};
 use crate::summary::data_summary;
 
-/// Arguments of `host-sim eval`.
-#[derive(Args, Debug, Clone)]
-pub struct EvalArgs {
+/// Options of `host-sim eval`.
+#[derive(Debug, Clone)]
+pub struct EvalOptions {
     /// Weights folder (`model.safetensors`, `spec.json`); default: the model the firmware ships
     /// (`weights/FIRMWARE_WEIGHTS`).
-    #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Simulated data folder (its `test/` split if present, else the folder itself).
-    #[arg(long)]
     pub data: PathBuf,
     /// Views fed to the model (1 = the reference as its own source); default: the views it was
     /// trained on (`views` in the weights folder's `manifest.json`, else the spec's).
-    #[arg(long)]
     pub views: Option<usize>,
     /// Print JSON instead of a table.
-    #[arg(long)]
     pub json: bool,
     /// Use at most this many samples.
-    #[arg(long)]
     pub limit: Option<usize>,
     /// Also run the int8 library on the blob in the weights folder (`epssn-s.q8.bin`): its
     /// accuracy and its mean absolute depth difference from the float model.
-    #[arg(long)]
     pub int8: bool,
     /// Also report where the all-pixel error comes from: surface, silhouette, empty far and
     /// empty near rays, pooled over the maps (`epssn_sim::metrics::ErrorBreakdown`).
-    #[arg(long)]
     pub breakdown: bool,
     /// Also write each sample's float depth map (the f64 reference network's) to
     /// `<DIR>/<sample>/depth_float.npy`: f32 metres, elevation rows × azimuth columns, the
     /// layout `epssn-train predict` writes, so the two float networks can be compared.
-    #[arg(long, value_name = "DIR")]
     pub save_depth: Option<PathBuf>,
 }
 
@@ -52,7 +43,7 @@ pub const METRIC: &str = "mae: 1000/(E*A) * sum over all E*A pixels of |pred - c
 const BREAKDOWN_CLASSES: &str = "surface: mask pixels with every 4-neighbour in the mask; silhouette: mask pixels with one outside; empty_far / empty_near: rays outside the mask labelled r_max / r_min. pixel_share and error_share in % (pooled over the maps), mae in mm";
 
 /// Runs `host-sim eval`.
-pub fn run(args: &EvalArgs) -> Result<()> {
+pub fn run(args: &EvalOptions) -> Result<()> {
     let weights = match &args.weights {
         Some(w) => w.clone(),
         None => weights::firmware_weights_dir()?,
@@ -253,7 +244,7 @@ fn report_json(
     ctx: &Report,
     looks: &Looks,
     s: &Scores,
-    args: &EvalArgs,
+    args: &EvalOptions,
 ) -> Result<serde_json::Value> {
     let int8 = if args.int8 {
         let mut j = serde_json::to_value(Accuracy::of(&s.int8))?;
@@ -285,7 +276,7 @@ fn report_json(
     Ok(j)
 }
 
-fn print_table(ctx: &Report, s: &Scores, args: &EvalArgs) {
+fn print_table(ctx: &Report, s: &Scores, args: &EvalOptions) {
     println!(
         "weights {}  data {}  views {}  samples {}",
         ctx.weights.display(),

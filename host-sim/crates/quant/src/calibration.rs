@@ -35,7 +35,7 @@ pub struct CalibSample {
 }
 
 /// Which depth pixels the per-tensor search scores.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SearchPixels {
     /// The ground-truth mask: rays that meet a surface inside the window.

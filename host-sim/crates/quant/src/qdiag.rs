@@ -9,7 +9,7 @@
 //! depth differences from the float model and MAE against ground truth, both over the mask.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, ensure, Context, Result};
 use epssn::config::LAYERS;
@@ -21,20 +21,16 @@ use epssn_reference::float::WeightLayout;
 use epssn_reference::floatref::{fold_all, run_folded, FoldedWeights};
 
 /// `host-sim qdiag`.
-#[derive(clap::Args, Debug)]
-pub struct QdiagArgs {
+#[derive(Debug)]
+pub struct QdiagOptions {
     /// Weights folder: `model.safetensors`, `quantisation.json` (the activation scales) and the
     /// blob `epssn-s.q8.bin`.
-    #[arg(long)]
     pub weights: PathBuf,
     /// Simulated data folder; its `test/` split is used (held out from training and calibration).
-    #[arg(long)]
     pub data: PathBuf,
     /// Samples to use (evenly spread over the split).
-    #[arg(long, default_value_t = 24)]
     pub limit: usize,
     /// Print JSON instead of a table.
-    #[arg(long)]
     pub json: bool,
 }
 
@@ -88,35 +84,58 @@ struct Config {
 }
 
 /// Runs `host-sim qdiag`.
-pub fn run(args: &QdiagArgs) -> Result<()> {
+pub fn run(args: &QdiagOptions) -> Result<()> {
     let weights = epssn_reference::safetensors_io::load_float_weights(
         &args.weights.join("model.safetensors"),
     )?;
-    let qpath = args.weights.join("quantisation.json");
-    let qjson: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&qpath).with_context(|| format!("reading {}", qpath.display()))?,
-    )
-    .with_context(|| format!("parsing {}", qpath.display()))?;
-    let scales: BTreeMap<String, f64> =
-        serde_json::from_value(qjson["quantisation"]["activation_scales"].clone())
-            .map_err(|e| anyhow!("{}: no activation_scales ({e})", qpath.display()))?;
+    let scales = activation_scales(&args.weights)?;
     let blob = std::fs::read(args.weights.join(epssn_reference::weights::BLOB_FILE))
         .with_context(|| format!("reading the blob in {}", args.weights.display()))?;
     let model =
         epssn::model::Model::from_blob(&blob).map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
-    // The codes a tensor's int8 values stand for: the cost volume's follow the blob's zero point.
-    let cost_zero = model.cost_zero_point();
-    let codes = |name: &str| {
-        let (lo, hi) = crate::quantiser::codes(name, cost_zero);
-        (lo as f32, hi as f32)
-    };
-
     let dirs = epssn_sim::dataset::sample_dirs(&args.data, epssn_sim::scene::Split::Test)?;
     ensure!(!dirs.is_empty(), "no samples under {}", args.data.display());
     let step = (dirs.len() / args.limit.max(1)).max(1);
     let dirs: Vec<_> = dirs.into_iter().step_by(step).take(args.limit).collect();
-
     let names: Vec<String> = scales.keys().filter(|k| *k != "input").cloned().collect();
+    let configs = configs(&names);
+    let folded = fold_all(&weights)?;
+    let folded_q = fake_quant_weights(&folded, &scales);
+    let views_n = epssn_reference::weights::int8_views(&args.weights)?;
+    let ctx = SampleRun {
+        configs: &configs,
+        folded: &folded,
+        folded_q: &folded_q,
+        scales: &scales,
+        model: &model,
+        views: views_n,
+    };
+    let per_sample: Vec<Vec<(f64, f64, f64)>> = dirs
+        .par_iter()
+        .map(|d| ctx.rows(d))
+        .collect::<Result<_>>()?;
+    let labels = configs
+        .iter()
+        .map(|c| c.label.clone())
+        .chain(["int8 library".to_string()]);
+    let table = mean_rows(labels, &per_sample);
+    print_table(args, &table, per_sample.len())
+}
+
+/// The activation scales in the folder's `quantisation.json`.
+fn activation_scales(weights: &Path) -> Result<BTreeMap<String, f64>> {
+    let qpath = weights.join("quantisation.json");
+    let qjson: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(&qpath).with_context(|| format!("reading {}", qpath.display()))?,
+    )
+    .with_context(|| format!("parsing {}", qpath.display()))?;
+    serde_json::from_value(qjson["quantisation"]["activation_scales"].clone())
+        .map_err(|e| anyhow!("{}: no activation_scales ({e})", qpath.display()))
+}
+
+/// The table's rows: float, weights only, each tensor alone, all but each tensor, all but
+/// the weights, and everything (the float emulation of the int8 model).
+fn configs(names: &[String]) -> Vec<Config> {
     let mut configs = vec![Config {
         label: "float".into(),
         tensors: vec![],
@@ -127,14 +146,14 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
         tensors: vec![],
         weights: true,
     });
-    for n in &names {
+    for n in names {
         configs.push(Config {
             label: format!("{n} only"),
             tensors: vec![n.clone()],
             weights: false,
         });
     }
-    for n in &names {
+    for n in names {
         configs.push(Config {
             label: format!("all but {n}"),
             tensors: names.iter().filter(|m| *m != n).cloned().collect(),
@@ -143,58 +162,82 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
     }
     configs.push(Config {
         label: "all but weights".into(),
-        tensors: names.clone(),
+        tensors: names.to_vec(),
         weights: false,
     });
     configs.push(Config {
         label: "all (float emulation)".into(),
-        tensors: names.clone(),
+        tensors: names.to_vec(),
         weights: true,
     });
+    configs
+}
 
-    let folded = fold_all(&weights)?;
-    let folded_q = fake_quant_weights(&folded, &scales);
-    let views_n = epssn_reference::weights::int8_views(&args.weights)?;
-    // Per sample: (diff from float, MAE vs GT) per config, then the library's.
-    let per_sample: Vec<Vec<(f64, f64, f64)>> = dirs
-        .par_iter()
-        .map(|d| -> Result<_> {
-            let s = epssn_sim::dataset::Sample::load(d)?;
-            let views = s.polar_views_u8();
-            let refs: Vec<&[u8]> = views.iter().take(views_n).map(|v| v.as_slice()).collect();
-            let mask = SearchPixels::Mask.scored(&s.mask);
-            let mut float_depth = Vec::new();
-            let mut rows = Vec::new();
-            for c in &configs {
-                let w = if c.weights { &folded_q } else { &folded };
-                let mut hook = |name: &str, x: &mut [f32]| {
-                    if c.tensors.iter().any(|t| t == name) {
-                        if let Some(&sc) = scales.get(name) {
-                            fake_quant(x, sc, codes(name));
-                        }
+/// What every sample is run with.
+struct SampleRun<'a> {
+    configs: &'a [Config],
+    folded: &'a FoldedWeights,
+    folded_q: &'a FoldedWeights,
+    scales: &'a BTreeMap<String, f64>,
+    model: &'a epssn::model::Model<'a>,
+    views: usize,
+}
+
+impl SampleRun<'_> {
+    /// One sample's (diff from float, MAE vs GT, MAE over all pixels) per config, then the
+    /// library's.
+    fn rows(&self, dir: &Path) -> Result<Vec<(f64, f64, f64)>> {
+        // The codes a tensor's int8 values stand for: the cost volume's follow the blob's zero
+        // point.
+        let cost_zero = self.model.cost_zero_point();
+        let codes = |name: &str| {
+            let (lo, hi) = crate::quantiser::codes(name, cost_zero);
+            (lo as f32, hi as f32)
+        };
+        let s = epssn_sim::dataset::Sample::load(dir)?;
+        let views = s.polar_views_u8();
+        let refs: Vec<&[u8]> = views
+            .iter()
+            .take(self.views)
+            .map(|v| v.as_slice())
+            .collect();
+        let mask = SearchPixels::Mask.scored(&s.mask);
+        let mut float_depth = Vec::new();
+        let mut rows = Vec::new();
+        for c in self.configs {
+            let w = if c.weights {
+                self.folded_q
+            } else {
+                self.folded
+            };
+            let mut hook = |name: &str, x: &mut [f32]| {
+                if c.tensors.iter().any(|t| t == name) {
+                    if let Some(&sc) = self.scales.get(name) {
+                        fake_quant(x, sc, codes(name));
                     }
-                };
-                let t = run_folded(w, &refs, &mut hook)?;
-                if float_depth.is_empty() {
-                    float_depth = t.depth.clone();
                 }
-                rows.push(diff_and_mae(&t.depth, &float_depth, &s.depth, &mask)?);
+            };
+            let t = run_folded(w, &refs, &mut hook)?;
+            if float_depth.is_empty() {
+                float_depth = t.depth.clone();
             }
-            let mut ws = Box::new(epssn::model::Workspace::new());
-            let dq = epssn_reference::int8::depth_metres(&model, &refs, &mut ws)?;
-            rows.push(diff_and_mae(&dq, &float_depth, &s.depth, &mask)?);
-            Ok(rows)
-        })
-        .collect::<Result<_>>()?;
+            rows.push(diff_and_mae(&t.depth, &float_depth, &s.depth, &mask)?);
+        }
+        let mut ws = Box::new(epssn::model::Workspace::new());
+        let dq = epssn_reference::int8::depth_metres(self.model, &refs, &mut ws)?;
+        rows.push(diff_and_mae(&dq, &float_depth, &s.depth, &mask)?);
+        Ok(rows)
+    }
+}
 
-    let labels = configs
-        .iter()
-        .map(|c| c.label.clone())
-        .chain(["int8 library".to_string()]);
-    let table: Vec<(String, f64, f64, f64)> = labels
+/// Each row's means over the samples; samples with an empty mask (NaN) do not count.
+fn mean_rows(
+    labels: impl Iterator<Item = String>,
+    per_sample: &[Vec<(f64, f64, f64)>],
+) -> Vec<(String, f64, f64, f64)> {
+    labels
         .enumerate()
         .map(|(i, label)| {
-            // Samples with an empty mask (NaN) do not count.
             let valid: Vec<(f64, f64, f64)> = per_sample
                 .iter()
                 .map(|rows| rows[i])
@@ -206,7 +249,15 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
             });
             (label, d, m, a)
         })
-        .collect();
+        .collect()
+}
+
+/// The table as text or JSON (`--json`).
+fn print_table(
+    args: &QdiagOptions,
+    table: &[(String, f64, f64, f64)],
+    samples: usize,
+) -> Result<()> {
     if args.json {
         let rows: Vec<_> = table
             .iter()
@@ -218,21 +269,21 @@ pub fn run(args: &QdiagArgs) -> Result<()> {
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({
                 "weights": args.weights.display().to_string(),
-                "samples": per_sample.len(),
+                "samples": samples,
                 "rows": rows,
             }))?
         );
     } else {
         println!(
             "{} samples of {}; depth |int8 − float| and MAE vs ground truth over the mask, and the paper's MAE over all pixels, mm",
-            per_sample.len(),
+            samples,
             args.data.join("test").display()
         );
         println!(
             "{:<24} {:>10} {:>10} {:>10}",
             "quantised", "vs float", "MAE", "MAE all"
         );
-        for (l, d, m, a) in &table {
+        for (l, d, m, a) in table {
             println!("{l:<24} {d:>10.2} {m:>10.2} {a:>10.2}");
         }
     }

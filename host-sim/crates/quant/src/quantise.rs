@@ -47,50 +47,39 @@ pub fn write(dir: &Path, q: &Quantised, float_source: serde_json::Value) -> Resu
 }
 
 /// `host-sim quantise`: float weights + calibration data → blob and manifest.
-#[derive(clap::Args, Debug)]
-pub struct QuantiseArgs {
+#[derive(Debug)]
+pub struct QuantiseOptions {
     /// Quantise the trained model in this weights folder (`model.safetensors`); the blob and
     /// `quantisation.json` are written beside it unless `--out` says otherwise.
-    #[arg(long, conflicts_with = "random_init")]
     pub weights: Option<PathBuf>,
     /// Calibration data: simulated sample folders (`DIR/train/...`); training data only, so
     /// that accuracy figures on the test split stay held-out.
-    #[arg(long, requires = "weights")]
     pub calib: Option<PathBuf>,
     /// Quantise an untrained, He-initialised model with this seed (for bit-exactness runs and
     /// benchmarks before trained weights exist), calibrated on synthetic images.
-    #[arg(long)]
     pub random_init: Option<u64>,
     /// Number of calibration inputs.
-    #[arg(long, default_value_t = 32)]
     pub calibration_samples: usize,
     /// Activation range = this percentile of |x| over the calibration inputs (100 = max).
-    #[arg(long, default_value_t = 100.0)]
     pub percentile: f64,
     /// Choose each tensor's percentile by scoring candidate blobs with the int8 library on the
     /// calibration samples (`--percentile` is the starting point); see `calibration.rs`.
-    #[arg(long, requires = "weights")]
     pub search: bool,
     /// Sweeps of the per-tensor search.
-    #[arg(long, default_value_t = 1)]
     pub search_passes: usize,
     /// Depth pixels the search scores |int8 − float| on: the ground-truth mask (surfaces in the
     /// window), or all pixels, as the paper's MAE counts them (rays that meet nothing too).
-    #[arg(long, value_enum, default_value_t = SearchPixels::Mask)]
     pub search_pixels: SearchPixels,
     /// Take every activation scale from this folder's `quantisation.json` instead of
     /// calibrating: for a model trained quantisation-aware on those scales (`train
     /// --fake-quant`), whose activations were clipped and rounded to them.
-    #[arg(long, requires = "weights", conflicts_with_all = ["search", "random_init"])]
     pub ranges_from: Option<PathBuf>,
     /// Output folder for the blob and `quantisation.json`.
-    #[arg(long)]
     pub out: Option<PathBuf>,
     /// Re-stamp the blob in this folder for the current spec instead of quantising: only the
     /// spec CRC (header offset 12) and the blob CRC change, every tensor byte stays, and
     /// `quantisation.json`'s `spec_hash` and `blob_crc32` follow. For spec edits that change
     /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
-    #[arg(long, conflicts_with_all = ["weights", "random_init"])]
     pub restamp: Option<PathBuf>,
 }
 
@@ -176,7 +165,7 @@ struct Calibration {
 
 /// `--weights DIR --calib DATA`: the trained model on `n` training samples, evenly spread
 /// over the split (training data only, so accuracy on the test split stays held out).
-fn trained_calibration(args: &QuantiseArgs, dir: &Path, n: usize) -> Result<Calibration> {
+fn trained_calibration(args: &QuantiseOptions, dir: &Path, n: usize) -> Result<Calibration> {
     let weights =
         epssn_reference::safetensors_io::load_float_weights(&dir.join("model.safetensors"))?;
     let calib = args
@@ -236,7 +225,7 @@ fn trained_calibration(args: &QuantiseArgs, dir: &Path, n: usize) -> Result<Cali
 }
 
 /// `--random-init SEED`: an untrained model on up to 8 pairs of synthetic images.
-fn random_calibration(args: &QuantiseArgs, seed: u64, n: usize) -> Result<Calibration> {
+fn random_calibration(args: &QuantiseOptions, seed: u64, n: usize) -> Result<Calibration> {
     let weights = epssn_reference::float::random_float_weights(seed);
     let mut rng = epssn_sim::synthetic::Rng(seed ^ 0x5EED);
     let traces = (0..n.min(8))
@@ -261,7 +250,7 @@ fn random_calibration(args: &QuantiseArgs, seed: u64, n: usize) -> Result<Calibr
 }
 
 /// Runs `host-sim quantise`.
-pub fn run(args: &QuantiseArgs, out: &mut impl std::io::Write) -> Result<()> {
+pub fn run(args: &QuantiseOptions, out: &mut impl std::io::Write) -> Result<()> {
     if let Some(dir) = &args.restamp {
         return restamp(dir, out);
     }

@@ -3,8 +3,8 @@
 
 use std::collections::BTreeMap;
 
+use crate::rng::Rng;
 use epssn::config::{LayerKind, LayerShape, LAYERS};
-use epssn_sim::synthetic::Rng;
 
 /// Batch-norm epsilon of every batch-norm layer.
 pub const BN_EPSILON: f64 = 1e-5;

@@ -10,5 +10,6 @@ pub mod floatref;
 pub mod int8;
 pub mod intref;
 pub mod reference_model;
+pub mod rng;
 pub mod safetensors_io;
 pub mod weights;

@@ -86,116 +86,34 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
     let mut trace = Trace::default();
     let mut feats = Vec::new();
     for image in views {
-        if image.len() != config::INPUT_LEN {
-            return Err(anyhow!(
-                "image has {} values, {} expected",
-                image.len(),
-                config::INPUT_LEN
-            ));
-        }
-        let mut x: Vec<i8> = image.iter().map(|&u| (u as i16 - 128) as i8).collect();
-        let mut map = BTreeMap::new();
-        for (i, l) in LAYERS.iter().enumerate().take(feature_layers) {
-            let p = &all[i];
-            let offset = if i == 0 { 128 } else { 0 };
-            x = intref::conv(&Shape::from(l), &x, &p.w, &p.b, &p.m, offset, l.relu);
-            map.insert(l.name.to_string(), x.clone());
-        }
+        let (x, map) = feature_net(image, &all[..feature_layers])?;
         feats.push(x);
         trace.features.push(map);
     }
-    let mut c = [0i32; 4];
-    blob.read_i32("cost.rq", &mut c)
-        .map_err(|e| anyhow!("cost.rq: {e:?}"))?;
-    let n = views.len();
-    let mult = if n == 2 {
-        Mult {
-            m: c[0],
-            shift: c[1],
-        }
-    } else {
-        Mult {
-            m: c[2],
-            shift: c[3],
-        }
-    };
-    // The mean channels' multipliers, present when the spec has mean channels.
-    let mut mean = [0i32; 4];
-    if config::MEAN_CHANNELS > 0 {
-        blob.read_i32(epssn::model::COST_MEAN_TENSOR, &mut mean)
-            .map_err(|e| anyhow!("cost.mean: {e:?}"))?;
-    }
-    let k = if n == 2 { 0 } else { 2 };
-    let mean_mult = Mult {
-        m: mean[k],
-        shift: mean[k + 1],
-    };
-    // The cost volume's zero point: 0 when the blob predates it.
-    let zero_point = match blob.read_i32("cost.zp", &mut c[..1]) {
-        Ok(()) => c[0],
-        Err(epssn::blob::BlobError::MissingTensor) => 0,
-        Err(e) => return Err(anyhow!("cost.zp: {e:?}")),
-    };
-    let sources: Vec<(&[i8], &[epssn::geometry::WarpEntry])> = (1..n)
+    let cost = CostParams::read(&blob, views.len())?;
+    let sources: Vec<(&[i8], &[epssn::geometry::WarpEntry])> = (1..views.len())
         .map(|k| (feats[k].as_slice(), &config::WARP_TABLES[k - 1][..]))
         .collect();
-    let cost = intref::cost_volume(
+    let volume = intref::cost_volume(
         &feats[0],
         &sources,
         config::FEATURE_CHANNELS,
         config::PLANES,
         config::FEATURE_RANGE_BINS,
         config::FEATURE_COLUMNS,
-        mult,
+        cost.mult,
         config::MEAN_CHANNELS,
-        mean_mult,
-        zero_point,
+        cost.mean_mult,
+        cost.zero_point,
     );
-    trace.cost_net.insert("cost".into(), cost.clone());
-    let mut x = cost;
-    for (i, l) in LAYERS.iter().enumerate().skip(feature_layers) {
-        let p = &all[i];
-        let sh = Shape::from(l);
-        x = match l.kind {
-            // The layer reading the cost volume adds its zero point back.
-            LayerKind::Conv3d => {
-                let offset = if i == feature_layers { -zero_point } else { 0 };
-                intref::conv(&sh, &x, &p.w, &p.b, &p.m, offset, l.relu)
-            }
-            LayerKind::ConvTranspose3d => {
-                let skip = match (l.skip, p.skip) {
-                    (Some(name), Some(m)) => Some((
-                        trace
-                            .cost_net
-                            .get(name)
-                            .ok_or_else(|| anyhow!("skip tensor {name} not computed"))?
-                            .clone(),
-                        m,
-                    )),
-                    _ => None,
-                };
-                intref::conv_transpose(
-                    &sh,
-                    &x,
-                    &p.w,
-                    &p.b,
-                    &p.m,
-                    0,
-                    l.relu,
-                    skip.as_ref().map(|(t, m)| {
-                        let offset = if l.skip == Some("cost") {
-                            -zero_point
-                        } else {
-                            0
-                        };
-                        (t.as_slice(), *m, offset)
-                    }),
-                )
-            }
-            LayerKind::Conv2d => return Err(anyhow!("2D layer {} in the cost net", l.name)),
-        };
-        trace.cost_net.insert(l.name.to_string(), x.clone());
-    }
+    trace.cost_net.insert("cost".into(), volume.clone());
+    let x = cost_net(
+        volume,
+        &all,
+        feature_layers,
+        cost.zero_point,
+        &mut trace.cost_net,
+    )?;
     let mut exp = [0u16; 256];
     blob.read_u16("exp", &mut exp)
         .map_err(|e| anyhow!("exp: {e:?}"))?;
@@ -211,4 +129,122 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         config::NO_RETURN_MASS_Q16,
     );
     Ok(trace)
+}
+
+/// Tensors by layer name.
+type Outputs = BTreeMap<String, Vec<i8>>;
+
+/// One view through the feature net (`params`, its layers in order): the features and every
+/// layer's output by name.
+fn feature_net(image: &[u8], params: &[LayerParams]) -> Result<(Vec<i8>, Outputs)> {
+    if image.len() != config::INPUT_LEN {
+        return Err(anyhow!(
+            "image has {} values, {} expected",
+            image.len(),
+            config::INPUT_LEN
+        ));
+    }
+    let mut x: Vec<i8> = image.iter().map(|&u| (u as i16 - 128) as i8).collect();
+    let mut map = BTreeMap::new();
+    for (i, (l, p)) in LAYERS.iter().zip(params).enumerate() {
+        let offset = if i == 0 { 128 } else { 0 };
+        x = intref::conv(&Shape::from(l), &x, &p.w, &p.b, &p.m, offset, l.relu);
+        map.insert(l.name.to_string(), x.clone());
+    }
+    Ok((x, map))
+}
+
+/// The cost volume's requantisation for `views` views, its mean channels' and its zero point.
+struct CostParams {
+    mult: Mult,
+    mean_mult: Mult,
+    zero_point: i32,
+}
+
+impl CostParams {
+    fn read(blob: &Blob<'_>, views: usize) -> Result<Self> {
+        let mut c = [0i32; 4];
+        blob.read_i32("cost.rq", &mut c)
+            .map_err(|e| anyhow!("cost.rq: {e:?}"))?;
+        // Two views' multiplier first, then three views'.
+        let k = if views == 2 { 0 } else { 2 };
+        let mult = Mult {
+            m: c[k],
+            shift: c[k + 1],
+        };
+        // The mean channels' multipliers, present when the spec has mean channels.
+        let mut mean = [0i32; 4];
+        if config::MEAN_CHANNELS > 0 {
+            blob.read_i32(epssn::model::COST_MEAN_TENSOR, &mut mean)
+                .map_err(|e| anyhow!("cost.mean: {e:?}"))?;
+        }
+        let mean_mult = Mult {
+            m: mean[k],
+            shift: mean[k + 1],
+        };
+        // The cost volume's zero point: 0 when the blob predates it.
+        let zero_point = match blob.read_i32("cost.zp", &mut c[..1]) {
+            Ok(()) => c[0],
+            Err(epssn::blob::BlobError::MissingTensor) => 0,
+            Err(e) => return Err(anyhow!("cost.zp: {e:?}")),
+        };
+        Ok(CostParams {
+            mult,
+            mean_mult,
+            zero_point,
+        })
+    }
+}
+
+/// The cost net from the cost volume `x`: its layers (`all` from `first` on), each output
+/// stored in `outputs` by name (skips read theirs there); the head's logits.
+fn cost_net(
+    mut x: Vec<i8>,
+    all: &[LayerParams],
+    first: usize,
+    zero_point: i32,
+    outputs: &mut Outputs,
+) -> Result<Vec<i8>> {
+    for (i, l) in LAYERS.iter().enumerate().skip(first) {
+        let p = &all[i];
+        let sh = Shape::from(l);
+        x = match l.kind {
+            // The layer reading the cost volume adds its zero point back.
+            LayerKind::Conv3d => {
+                let offset = if i == first { -zero_point } else { 0 };
+                intref::conv(&sh, &x, &p.w, &p.b, &p.m, offset, l.relu)
+            }
+            LayerKind::ConvTranspose3d => {
+                let skip = match (l.skip, p.skip) {
+                    (Some(name), Some(m)) => Some((
+                        outputs
+                            .get(name)
+                            .ok_or_else(|| anyhow!("skip tensor {name} not computed"))?
+                            .clone(),
+                        m,
+                    )),
+                    _ => None,
+                };
+                // The skip from the cost volume adds its zero point back too.
+                let offset = if l.skip == Some("cost") {
+                    -zero_point
+                } else {
+                    0
+                };
+                intref::conv_transpose(
+                    &sh,
+                    &x,
+                    &p.w,
+                    &p.b,
+                    &p.m,
+                    0,
+                    l.relu,
+                    skip.as_ref().map(|(t, m)| (t.as_slice(), *m, offset)),
+                )
+            }
+            LayerKind::Conv2d => return Err(anyhow!("2D layer {} in the cost net", l.name)),
+        };
+        outputs.insert(l.name.to_string(), x.clone());
+    }
+    Ok(x)
 }

@@ -8,14 +8,12 @@ use std::io::Write;
 use anyhow::{bail, Context, Result};
 use epssn::config::LAYERS;
 
-/// Arguments of `host-sim bench`.
-#[derive(clap::Args, Debug)]
-pub struct BenchArgs {
+/// Options of `host-sim bench`.
+#[derive(Debug)]
+pub struct BenchOptions {
     /// Firmware ELF (default: build the target's firmware crate in release).
-    #[arg(long)]
     pub firmware: Option<std::path::PathBuf>,
     /// The core: `m7` (QEMU mps2-an500) or `m55` (QEMU mps3-an547).
-    #[arg(long, value_enum, default_value_t = crate::target::Target::M7)]
     pub target: crate::target::Target,
 }
 
@@ -31,7 +29,7 @@ fn parse_line(line: &str) -> Option<(String, u64)> {
 }
 
 /// Runs `host-sim bench`.
-pub fn run(args: &BenchArgs, out: &mut impl Write) -> Result<()> {
+pub fn run(args: &BenchOptions, out: &mut impl Write) -> Result<()> {
     let elf = match &args.firmware {
         Some(p) => p.clone(),
         None => crate::sil::build_firmware_with(args.target, None)?,

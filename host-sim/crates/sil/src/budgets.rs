@@ -24,8 +24,7 @@ pub fn default_path() -> PathBuf {
 /// The memory map the firmware of the build's spec links with: `memory.x` (EPSSN-S) or
 /// `memory-<spec stem>.x`.
 pub fn memory_x_path() -> PathBuf {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
-    per_spec_file(&root, "memory", "x", epssn::config::SPEC_FILE_NAME)
+    crate::target::Target::M7.memory_x_path()
 }
 
 /// The budgets.

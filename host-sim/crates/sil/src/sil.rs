@@ -18,7 +18,6 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
-use clap::Args;
 use epssn::config;
 use epssn::link::{self, Message};
 use epssn::model::{Model, Workspace};
@@ -35,64 +34,49 @@ use crate::faults::{campaign, fuzz, FaultReport};
 use crate::mcap_out::{DeviceMap, StreamedFrame};
 use crate::target::Target;
 
-/// Arguments of `host-sim sil`.
-#[derive(Args, Debug, Clone)]
-pub struct SilArgs {
+/// Options of `host-sim sil`.
+#[derive(Debug, Clone)]
+pub struct SilOptions {
     /// The recording to stream (default: the bundled simulated demo, `data/demo/`).
-    #[arg(long)]
     pub recording: Option<PathBuf>,
     /// Print machine-readable JSON.
-    #[arg(long)]
     pub json: bool,
     /// The firmware ELF (default: build the target's firmware crate in release and use it).
-    #[arg(long)]
     pub firmware: Option<PathBuf>,
-    /// The core to run on: `m7` (QEMU mps2-an500, `firmware/`) or `m55` (QEMU mps3-an547,
+    /// The core to run on: `m7` (QEMU mps2-an500, `boards/mps2-an500`) or `m55` (QEMU mps3-an547,
     /// `boards/mps3-an547`, budgets `weights/budgets-m55.json`).
-    #[arg(long, value_enum, default_value_t = Target::M7)]
     pub target: Target,
     /// Stream at most this many frames.
-    #[arg(long)]
     pub frames: Option<usize>,
     /// After the frames, send this many malformed messages (with status requests between).
-    #[arg(long, default_value_t = 0)]
     pub fuzz: usize,
     /// Fault campaign (docs/LINK.md, "Fault campaign"): rounds per fault class, each fault checked
     /// against the library decoder's verdict, then a hello and valid frames checked bit for bit.
-    #[arg(long, default_value_t = 2)]
     pub faults: usize,
     /// Soak (docs/LINK.md): instead of the fault campaign, at least this many messages (N ≥
     /// 5,000 for the issue's soak), valid and faulty: blocks of one round of every fault class
     /// followed by a hello and valid frames whose depth maps must be bit-exact; the stack
     /// high-water must end where it began.
-    #[arg(long, default_value_t = 0)]
     pub soak: usize,
     /// Seed of the fuzz run and the fault campaign.
-    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Seconds to wait for any one reply.
-    #[arg(long, default_value_t = 120)]
     pub timeout: u64,
     /// The budgets file (default: the target's, `weights/budgets.json` for the M7).
-    #[arg(long)]
     pub budgets: Option<PathBuf>,
     /// Talk to a real board on this serial port (e.g. `/dev/ttyACM0`, the ST-LINK's virtual
     /// COM port) instead of booting the firmware in QEMU. Sizes come from `--firmware`
     /// (default: the STM32H743 board's release ELF, if built); budgets are not applied.
-    #[arg(long)]
     pub serial: Option<PathBuf>,
     /// The serial port's baud rate (the board's `LINK_BAUD`).
-    #[arg(long, default_value_t = 921_600)]
     pub baud: u32,
     /// Device resets (docs/LINK.md, "Resets"): builds the firmware with its test-only feature
     /// `reset-faults` and provokes a hang, a panic and a stack overflow this many rounds each
     /// (seeded order), checking each reset's cause and fault record and the depth maps after
     /// it bit for bit.
-    #[arg(long, default_value_t = 0)]
     pub reset_faults: usize,
     /// Also write what the device returned as an MCAP file of ROS 2 messages (docs/MCAP.md):
     /// every frame streamed and every depth map the device sent back, with its points.
-    #[arg(long)]
     pub mcap: Option<PathBuf>,
 }
 
@@ -202,8 +186,8 @@ fn firmware_blob() -> Result<Vec<u8>> {
 
 /// Builds the firmware (release; cargo decides whether anything changed) for the spec this
 /// host build was generated from, and returns the ELF path. The target directory is
-/// `epssn_spec::load::per_spec_dir` of `firmware/target` (EPSSN-S in `firmware/target`, any
-/// other configuration in `firmware/target/<spec stem>`), so the two never rebuild each
+/// `epssn_spec::load::per_spec_dir` of `boards/mps2-an500/target` (EPSSN-S there, any other
+/// configuration in `boards/mps2-an500/target/<spec stem>`), so the two never rebuild each
 /// other's artefacts.
 pub fn build_firmware() -> Result<PathBuf> {
     build_firmware_with(Target::M7, None)
@@ -513,11 +497,11 @@ fn soak(
 
 /// The firmware ELF (built unless named), its flash and static RAM, and the device running
 /// it: QEMU, or the board on `--serial`.
-fn open_device(args: &SilArgs, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
+fn open_device(args: &SilOptions, timeout: Duration) -> Result<(PathBuf, (u64, u64), Device)> {
     if args.reset_faults > 0 && args.target != Target::M7 {
         bail!(
-            "--reset-faults needs the Cortex-M7 firmware (firmware/): the {:?} board has no \
-             watchdog or fault record yet",
+            "--reset-faults needs the Cortex-M7 firmware (boards/mps2-an500): the {:?} board has \
+             no watchdog or fault record yet",
             args.target
         );
     }
@@ -556,7 +540,7 @@ struct AfterFaults {
 /// `--soak N`, else `--faults N` followed by the first frames again; `seq` is the session's
 /// last sequence number, which the campaign's closing hello restarts.
 fn faults_and_soak(
-    args: &SilArgs,
+    args: &SilOptions,
     device: &mut Device,
     frames: &[HostFrame],
     seq: &mut u32,
@@ -598,7 +582,7 @@ fn faults_and_soak(
 /// `--reset-faults N` on the session's frames (the first `AFTER_FAULTS_FRAMES`), each
 /// stream starting a session's numbering at 1.
 fn provoke_resets(
-    args: &SilArgs,
+    args: &SilOptions,
     device: &mut Device,
     frames: &[HostFrame],
 ) -> Result<crate::resets::ResetReport> {
@@ -645,7 +629,7 @@ fn close(device: &mut Device, seq: &mut u32) -> Result<(link::Status, bool, bool
 }
 
 /// Runs the SIL and returns the report.
-pub fn sil(args: &SilArgs) -> Result<SilReport> {
+pub fn sil(args: &SilOptions) -> Result<SilReport> {
     let recording = args
         .recording
         .clone()
@@ -700,19 +684,8 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
     } else {
         instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
     };
-    let budgets = crate::budgets::Budgets::load(
-        &args
-            .budgets
-            .clone()
-            .unwrap_or_else(|| args.target.budgets_path()),
-    )?;
     let ram = static_ram + u64::from(status.stack_high_water);
-    // The budgets are the QEMU build's (instructions, its flash and RAM): not a board's cycles.
-    let budget_violations = if args.serial.is_some() {
-        Vec::new()
-    } else {
-        budgets.violations(&instructions, ram, flash)
-    };
+    let (budgets, budget_violations) = check_budgets(args, &instructions, ram, flash)?;
     let fuzz_alive = fuzz_report
         .as_ref()
         .is_none_or(|f| f.status_replies == f.status_requests && f.unanswered == 0);
@@ -762,23 +735,56 @@ pub fn sil(args: &SilArgs) -> Result<SilReport> {
         budget_violations,
     };
     if let Some(path) = &args.mcap {
-        let streamed: Vec<StreamedFrame> = frames
-            .iter()
-            .map(|f| StreamedFrame {
-                time_us: f.time_us,
-                attitude: f.attitude,
-                image: &f.image,
-            })
-            .collect();
-        crate::mcap_out::write(path, &streamed, &maps, &report)
-            .with_context(|| format!("sil --mcap {}", path.display()))?;
+        write_mcap(path, &frames, &maps, &report)?;
     }
     Ok(report)
 }
 
+/// The budgets of the run's target (or `--budgets`) and what the run broke of them. The
+/// budgets are the QEMU build's (instructions, its flash and RAM): not a board's cycles, so a
+/// run over `--serial` breaks none.
+fn check_budgets(
+    args: &SilOptions,
+    instructions: &[u32],
+    ram: u64,
+    flash: u64,
+) -> Result<(crate::budgets::Budgets, Vec<String>)> {
+    let budgets = crate::budgets::Budgets::load(
+        &args
+            .budgets
+            .clone()
+            .unwrap_or_else(|| args.target.budgets_path()),
+    )?;
+    let violations = if args.serial.is_some() {
+        Vec::new()
+    } else {
+        budgets.violations(instructions, ram, flash)
+    };
+    Ok((budgets, violations))
+}
+
+/// `--mcap`: every frame streamed and every depth map the device sent back.
+fn write_mcap(
+    path: &Path,
+    frames: &[HostFrame],
+    maps: &[DeviceMap],
+    report: &SilReport,
+) -> Result<()> {
+    let streamed: Vec<StreamedFrame> = frames
+        .iter()
+        .map(|f| StreamedFrame {
+            time_us: f.time_us,
+            attitude: f.attitude,
+            image: &f.image,
+        })
+        .collect();
+    crate::mcap_out::write(path, &streamed, maps, report)
+        .with_context(|| format!("sil --mcap {}", path.display()))
+}
+
 /// `host-sim sil`: prints the report; fails unless bit-exact, with the host's pair
 /// rejections, and alive.
-pub fn run(args: &SilArgs, out: &mut impl Write) -> Result<()> {
+pub fn run(args: &SilOptions, out: &mut impl Write) -> Result<()> {
     let r = sil(args)?;
     if args.json {
         writeln!(out, "{}", serde_json::to_string_pretty(&r)?)?;
@@ -831,84 +837,10 @@ fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
         )?;
     }
     if let Some(f) = &r.faults {
-        writeln!(
-            out,
-            "fault campaign (seed {}, {} rounds, {:.1} s): {} faults, {} failed; stack \
-             high-water {} -> {} bytes",
-            f.seed,
-            f.rounds,
-            r.faults_seconds,
-            f.faults,
-            f.failed,
-            f.stack_high_water_before,
-            f.stack_high_water_after
-        )?;
-        writeln!(
-            out,
-            "  {:<22} {:>5} {:>9} {:>9}  expected code",
-            "class", "sent", "answered", "recovered"
-        )?;
-        for (class, c) in &f.classes {
-            writeln!(
-                out,
-                "  {class:<22} {:>5} {:>9} {:>9}  {}",
-                c.sent,
-                c.answered_expected,
-                c.recovered,
-                c.expected_code.join("/")
-            )?;
-            for failure in &c.failures {
-                writeln!(out, "    failed: {failure}")?;
-            }
-        }
-        writeln!(
-            out,
-            "after the faults: {} depth maps, bit-exact: {}",
-            r.after_faults_depth_maps, r.after_faults_bit_exact
-        )?;
-        if let Some(s) = &r.soak {
-            writeln!(
-                out,
-                "soak: {} messages in {} blocks ({:.1} s), {} valid frames, {} of {} depth \
-                 maps, {} values differ; stack high-water {} -> {} bytes (unchanged: {})",
-                s.messages,
-                s.blocks,
-                s.seconds,
-                s.valid_frames,
-                s.depth_maps,
-                s.expected_depth_maps,
-                s.mismatched_values,
-                s.stack_high_water_before,
-                s.stack_high_water_after,
-                s.stack_unchanged
-            )?;
-        }
+        write_faults(r, f, out)?;
     }
     if let Some(x) = &r.resets {
-        writeln!(
-            out,
-            "resets (seed {}, {} rounds, {:.1} s): {} depth maps checked, all as they must be: {}",
-            x.seed, x.rounds, x.seconds, x.depth_maps, x.all_ok
-        )?;
-        for e in &x.resets {
-            writeln!(
-                out,
-                "  {:<15} after {} frames ({} lost, re-sent): reset {} (expected {}), {:.1} s; \
-                 record {:?} fits: {}; acknowledged: {}; {} of {} depth maps after, bit-exact: {}",
-                e.fault,
-                e.frames_before,
-                e.frames_lost,
-                e.cause,
-                e.expected_cause,
-                e.reboot_seconds,
-                e.record,
-                e.record_ok,
-                e.acknowledged,
-                e.depth_maps_after,
-                e.expected_depth_maps_after,
-                e.bit_exact_after
-            )?;
-        }
+        write_resets(x, out)?;
     }
     writeln!(out, "alive: {}", r.alive)?;
     writeln!(
@@ -926,9 +858,95 @@ fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
     Ok(())
 }
 
+/// The fault campaign's table, and the soak's line after it.
+fn write_faults(r: &SilReport, f: &FaultReport, out: &mut impl Write) -> Result<()> {
+    writeln!(
+        out,
+        "fault campaign (seed {}, {} rounds, {:.1} s): {} faults, {} failed; stack \
+         high-water {} -> {} bytes",
+        f.seed,
+        f.rounds,
+        r.faults_seconds,
+        f.faults,
+        f.failed,
+        f.stack_high_water_before,
+        f.stack_high_water_after
+    )?;
+    writeln!(
+        out,
+        "  {:<22} {:>5} {:>9} {:>9}  expected code",
+        "class", "sent", "answered", "recovered"
+    )?;
+    for (class, c) in &f.classes {
+        writeln!(
+            out,
+            "  {class:<22} {:>5} {:>9} {:>9}  {}",
+            c.sent,
+            c.answered_expected,
+            c.recovered,
+            c.expected_code.join("/")
+        )?;
+        for failure in &c.failures {
+            writeln!(out, "    failed: {failure}")?;
+        }
+    }
+    writeln!(
+        out,
+        "after the faults: {} depth maps, bit-exact: {}",
+        r.after_faults_depth_maps, r.after_faults_bit_exact
+    )?;
+    if let Some(s) = &r.soak {
+        writeln!(
+            out,
+            "soak: {} messages in {} blocks ({:.1} s), {} valid frames, {} of {} depth \
+             maps, {} values differ; stack high-water {} -> {} bytes (unchanged: {})",
+            s.messages,
+            s.blocks,
+            s.seconds,
+            s.valid_frames,
+            s.depth_maps,
+            s.expected_depth_maps,
+            s.mismatched_values,
+            s.stack_high_water_before,
+            s.stack_high_water_after,
+            s.stack_unchanged
+        )?;
+    }
+    Ok(())
+}
+
+/// The device resets' lines.
+fn write_resets(x: &crate::resets::ResetReport, out: &mut impl Write) -> Result<()> {
+    writeln!(
+        out,
+        "resets (seed {}, {} rounds, {:.1} s): {} depth maps checked, all as they must be: {}",
+        x.seed, x.rounds, x.seconds, x.depth_maps, x.all_ok
+    )?;
+    for e in &x.resets {
+        writeln!(
+            out,
+            "  {:<15} after {} frames ({} lost, re-sent): reset {} (expected {}), {:.1} s; \
+             record {:?} fits: {}; acknowledged: {}; {} of {} depth maps after, bit-exact: {}",
+            e.fault,
+            e.frames_before,
+            e.frames_lost,
+            e.cause,
+            e.expected_cause,
+            e.reboot_seconds,
+            e.record,
+            e.record_ok,
+            e.acknowledged,
+            e.depth_maps_after,
+            e.expected_depth_maps_after,
+            e.bit_exact_after
+        )?;
+    }
+    Ok(())
+}
+
 /// Fails with the first thing the report says went wrong: the printed report comes first, so
 /// the figures are on screen when the run fails.
-fn verdict(r: &SilReport, args: &SilArgs) -> Result<()> {
+fn verdict(r: &SilReport, args: &SilOptions) -> Result<()> {
     if !r.bit_exact {
         bail!("SIL: depth maps are not bit-exact with the host library");
     }

@@ -1,4 +1,4 @@
-//! The emulated cores the firmware runs on: the Cortex-M7 (`firmware/`, QEMU `mps2-an500`,
+//! The emulated cores the firmware runs on: the Cortex-M7 (`boards/mps2-an500`, QEMU `mps2-an500`,
 //! the default) and the Cortex-M55 (`boards/mps3-an547`, QEMU `mps3-an547`). Each has its
 //! firmware crate, ELF, QEMU machine and budgets file; `sil` and `bench` take `--target`.
 
@@ -8,10 +8,10 @@ use std::process::Command;
 use epssn_spec::load::per_spec_file;
 
 /// A core and its board under QEMU.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Target {
-    /// Cortex-M7 on QEMU `mps2-an500` (`firmware/`).
+    /// Cortex-M7 on QEMU `mps2-an500` (`boards/mps2-an500`).
     #[default]
     M7,
     /// Cortex-M55 on QEMU `mps3-an547` (`boards/mps3-an547`).
@@ -22,7 +22,7 @@ impl Target {
     /// The firmware crate, relative to the repository root.
     pub fn crate_dir(self) -> &'static str {
         match self {
-            Target::M7 => "firmware",
+            Target::M7 => "boards/mps2-an500",
             Target::M55 => "boards/mps3-an547",
         }
     }
@@ -30,7 +30,7 @@ impl Target {
     /// The release ELF inside a target directory of the firmware crate.
     pub fn elf_in(self, target_dir: &Path) -> PathBuf {
         match self {
-            Target::M7 => target_dir.join("thumbv7em-none-eabihf/release/epssn-firmware"),
+            Target::M7 => target_dir.join("thumbv7em-none-eabihf/release/epssn-mps2-an500"),
             Target::M55 => target_dir.join("thumbv8m.main-none-eabihf/release/epssn-mps3-an547"),
         }
     }
@@ -66,7 +66,8 @@ impl Target {
         per_spec_file(&weights, name, "json", epssn::config::SPEC_FILE_NAME)
     }
 
-    /// The memory map the target's firmware links with for the build's spec.
+    /// The memory map the target's firmware links with for the build's spec: the repository's
+    /// `memory.x` for the Cortex-M7 image, the board's `memory/` for the others.
     pub fn memory_x_path(self) -> PathBuf {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../..");
         let dir = match self {

@@ -43,7 +43,8 @@ pub struct Sample {
     pub elevation: Vec<f32>,
 }
 
-fn load_checked(path: &Path, shape: [usize; 2]) -> Result<Vec<f32>> {
+/// Reads a sample's 2-D f32 array, refused unless its shape is `shape`.
+pub fn load_checked(path: &Path, shape: [usize; 2]) -> Result<Vec<f32>> {
     let a = read_f32(path)?;
     ensure!(
         a.shape == shape,
@@ -64,14 +65,12 @@ impl Sample {
             .with_context(|| format!("parsing {}/scene.json", dir.display()))?;
         let polar_shape = [INPUT_RANGE_BINS, INPUT_COLUMNS];
         let depth_shape = [DEPTH_ROWS, DEPTH_COLUMNS];
-        let polar_views = (0..scene.view_rolls_deg.len())
-            .map(|k| load_checked(&dir.join(format!("polar_view{k}.npy")), polar_shape))
-            .collect::<Result<Vec<_>>>()?;
+        let arrays = Arrays::load(dir, scene.view_rolls_deg.len(), polar_shape, depth_shape)?;
         Ok(Self {
             dir: dir.to_path_buf(),
-            polar_views,
-            depth: load_checked(&dir.join("depth.npy"), depth_shape)?,
-            mask: load_checked(&dir.join("mask.npy"), depth_shape)?,
+            polar_views: arrays.polar_views,
+            depth: arrays.depth,
+            mask: arrays.mask,
             elevation: load_checked(&dir.join("elevation.npy"), polar_shape)?,
             scene,
         })
@@ -79,20 +78,48 @@ impl Sample {
 
     /// The polar views as u8 (the model's integer input).
     pub fn polar_views_u8(&self) -> Vec<Vec<u8>> {
-        self.polar_views
-            .iter()
-            .map(|v| {
-                v.iter()
-                    .map(|x| x.round().clamp(0.0, 255.0) as u8)
-                    .collect()
-            })
-            .collect()
+        self.polar_views.iter().map(|v| polar_u8(v)).collect()
     }
 
     /// The mask as booleans.
     pub fn mask_bool(&self) -> Vec<bool> {
         crate::metrics::mask_from_f32(&self.mask)
     }
+}
+
+/// A sample folder's model arrays: its first views' polar images, the reference view's depth
+/// and mask, each checked against the shapes given (the build's, or a training spec's).
+#[derive(Clone, Debug)]
+pub struct Arrays {
+    /// Polar images R × B, values 0..=255 as f32, reference first.
+    pub polar_views: Vec<Vec<f32>>,
+    /// Front depth map E × A, metres.
+    pub depth: Vec<f32>,
+    /// Mask E × A, 1.0 where the first hit lies inside the window.
+    pub mask: Vec<f32>,
+}
+
+impl Arrays {
+    /// Loads `polar_view{k}.npy` for k < `views` (1 loads only the reference), `depth.npy` and
+    /// `mask.npy` from `dir`.
+    pub fn load(dir: &Path, views: usize, polar: [usize; 2], depth: [usize; 2]) -> Result<Self> {
+        let polar_views = (0..views)
+            .map(|k| load_checked(&dir.join(format!("polar_view{k}.npy")), polar))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            polar_views,
+            depth: load_checked(&dir.join("depth.npy"), depth)?,
+            mask: load_checked(&dir.join("mask.npy"), depth)?,
+        })
+    }
+}
+
+/// A polar image as the model's u8 input: rounded and clamped, as the firmware only ever sees
+/// u8 images.
+pub fn polar_u8(v: &[f32]) -> Vec<u8> {
+    v.iter()
+        .map(|x| x.round().clamp(0.0, 255.0) as u8)
+        .collect()
 }
 
 /// Sample folders of `root/<split>/`, sorted by index (six-digit names only).
@@ -110,4 +137,16 @@ pub fn sample_dirs(root: &Path, split: Split) -> Result<Vec<PathBuf>> {
     }
     out.sort();
     Ok(out)
+}
+
+/// Sample folders of `dir` (sub-folders holding `polar_view0.npy`, whatever their names),
+/// sorted by name.
+pub fn sample_dirs_in(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot list {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("polar_view0.npy").is_file())
+        .collect();
+    v.sort();
+    Ok(v)
 }

@@ -8,7 +8,8 @@ use epssn::config::{
 };
 
 use crate::render::{beam_centres_rad, frame_header, RenderedView, SonarSimParams};
-use crate::scene::{Scene, World};
+use crate::scene::Scene;
+use crate::world::World;
 use epssn_aris::aris::Frame;
 use epssn_aris::polar::frame_to_polar;
 

@@ -433,28 +433,24 @@ pub fn write_ply(path: &Path, points: &[[f64; 3]], colour: Option<[u8; 3]>) -> R
 }
 
 /// `host-sim metrics`: compare two depth maps.
-#[derive(clap::Args, Debug)]
-pub struct MetricsArgs {
+#[derive(Debug)]
+pub struct MetricsOptions {
     /// Predicted depth map (.npy float32, E × A metres).
     pub pred: PathBuf,
     /// Ground-truth depth map (.npy float32, E × A metres).
     pub gt: PathBuf,
     /// Mask (.npy float32 0/1); default: ground-truth pixels strictly inside the window.
-    #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Print JSON instead of text.
-    #[arg(long)]
     pub json: bool,
     /// Also write the predicted map's masked points as PLY.
-    #[arg(long)]
     pub ply_pred: Option<PathBuf>,
     /// Also write the ground truth's masked points as PLY.
-    #[arg(long)]
     pub ply_gt: Option<PathBuf>,
 }
 
 /// Runs `host-sim metrics`.
-pub fn run(args: &MetricsArgs) -> Result<()> {
+pub fn run(args: &MetricsOptions) -> Result<()> {
     let pred = epssn_aris::npy::read_f32(&args.pred)?.data;
     let gt = epssn_aris::npy::read_f32(&args.gt)?.data;
     let mask = match &args.mask {

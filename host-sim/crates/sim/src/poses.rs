@@ -27,9 +27,10 @@ use anyhow::{bail, ensure, Context, Result};
 use epssn::geometry::RigidTransform;
 
 use crate::groundtruth::reference_labels;
-use crate::scene::{Object, Scene, SceneKind, SonarPose, Split, World};
+use crate::scene::{Object, Scene, SceneKind, SonarPose, Split};
 use crate::simulate::SITE_REFLECTIVITY;
 use crate::site::Site;
+use crate::world::World;
 
 /// The file's header line: its columns, in order.
 pub const HEADER: &str = "frame,x_m,y_m,z_m,roll_deg,pitch_deg,yaw_deg";

@@ -19,7 +19,8 @@ use rand_distr::{Exp1, Gamma, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::scene::{mix64, Scene, World};
+use crate::scene::{mix64, Scene};
+use crate::world::World;
 use epssn_aris::aris::FrameHeader;
 
 /// Every parameter of the simulated sonar and its image formation.

@@ -20,8 +20,9 @@ use anyhow::{ensure, Context, Result};
 use serde::Serialize;
 
 use crate::render::{form_image, trace_view, SonarSimParams, TracedView};
-use crate::scene::{generate, SceneKind, Split, World};
+use crate::scene::{generate, SceneKind, Split};
 use crate::sensor_stats::{measure, measure_any, measure_recording, FrameRef, ImageStats};
+use crate::world::World;
 
 /// Speckle looks the search tries.
 pub const MAX_LOOKS: u32 = 8;
@@ -389,29 +390,22 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
 }
 
 /// `host-sim fit-sensor`.
-#[derive(clap::Args, Debug)]
-pub struct FitSensorArgs {
+#[derive(Debug)]
+pub struct FitSensorOptions {
     /// The recording (.aris) whose image statistics the simulator is fitted to.
-    #[arg(long)]
     pub recording: PathBuf,
     /// Write the fitted SonarSimParams here (JSON, for `simulate --params`).
-    #[arg(long)]
     pub out: PathBuf,
     /// Base parameters (geometry, rays; JSON as `simulate --params`); default: the defaults.
-    #[arg(long)]
     pub params: Option<PathBuf>,
     /// Scene family the fit simulates.
-    #[arg(long, value_enum, default_value_t = SceneKind::Artificial)]
     pub scene: SceneKind,
     /// Scenes the fit simulates (view 0 of each); fewer scenes let the scenes' own texture
     /// move the speckle statistics (6 scenes mistook 4 looks for 3 in the recovery test).
-    #[arg(long, default_value_t = 10)]
     pub scenes: usize,
     /// Seed of those scenes.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Print the report as JSON instead of a table.
-    #[arg(long)]
     pub json: bool,
 }
 
@@ -473,7 +467,7 @@ pub fn write_table(out: &mut dyn Write, columns: &[(&str, &ImageStats)]) -> Resu
 }
 
 /// Runs `host-sim fit-sensor`.
-pub fn run(args: &FitSensorArgs, out: &mut dyn Write) -> Result<()> {
+pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
     let base: SonarSimParams = match &args.params {
         Some(p) => serde_json::from_str(
             &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,

@@ -25,8 +25,9 @@ use rayon::prelude::*;
 
 use crate::groundtruth::{elevation_map, polar_image, reference_labels};
 use crate::render::{frame_header_posed, render_view, SonarSimParams};
-use crate::scene::{fix_pose, generate, Scene, SceneKind, Split, World};
+use crate::scene::{fix_pose, generate, Scene, SceneKind, Split};
 use crate::site::{Region, Site};
+use crate::world::World;
 use epssn_aris::aris::write_recording;
 
 /// Everything written for one sample.
@@ -181,71 +182,55 @@ pub fn sample_dir(root: &Path, split: Split, index: u64) -> PathBuf {
 }
 
 /// `host-sim simulate`.
-#[derive(clap::Args, Debug)]
-pub struct SimulateArgs {
+#[derive(Debug)]
+pub struct SimulateOptions {
     /// Scene family (or `--site`).
-    #[arg(long, value_enum, required_unless_present = "site")]
     pub scene: Option<SceneKind>,
     /// Draw the samples throughout the site in this mesh file (.stl, .obj, .ply; metres, z up,
     /// wound counter-clockwise seen from the water): docs/SITES.md.
-    #[arg(long, conflicts_with_all = ["scene", "fixed_pose"])]
     pub site: Option<PathBuf>,
     /// Where in the site poses are drawn (JSON, docs/SITES.md); default: the mesh's bounds less
     /// 0.3 m, at the procedural scenes' tilts and slant ranges, any heading.
-    #[arg(long, requires = "site")]
     pub region: Option<PathBuf>,
     /// Acoustic reflectivity of the site's every triangle; default 0.6.
-    #[arg(long, requires = "site")]
     pub site_reflectivity: Option<f64>,
     /// Write the scene of sample 0 (of `--seed`, `--split`) as a mesh to this file (.stl
     /// binary, .obj, .ply ASCII) instead of simulating: the tank's floor and walls and its
     /// objects, in its world frame.
-    #[arg(long, requires = "scene")]
     pub export_mesh: Option<PathBuf>,
     /// With `--export-mesh` and `--scene artificial`: instead of sample 0's scene, a fixed tank
     /// for a site, its objects spread over the whole floor (`scene::whole_tank` of `--seed`).
-    #[arg(long, requires = "export_mesh")]
     pub whole_tank: bool,
     /// Number of samples; default: the paper's size of the split (artificial 4000/2000,
     /// terrain 1000/1000, sphere 1000/500).
-    #[arg(long)]
     pub pairs: Option<usize>,
     /// Dataset seed.
-    #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Output root; samples go to `OUT/<split>/<000000>/`.
-    #[arg(long, required_unless_present = "export_mesh")]
     pub out: Option<PathBuf>,
     /// Split.
-    #[arg(long, value_enum, default_value_t = Split::Train)]
     pub split: Split,
     /// Views per sample, reference included (2 or 3).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=3))]
     pub views: u8,
     /// Skip the PNG previews.
-    #[arg(long)]
     pub no_preview: bool,
     /// SonarSimParams as JSON (missing fields keep their defaults); default: the defaults.
-    #[arg(long)]
     pub params: Option<PathBuf>,
     /// Tilt every source view's forward axis by exactly this many degrees in a random
     /// direction (pitch = D·cos φ, yaw = D·sin φ, φ uniform per view from the sample's seed):
     /// rendered so, and written into the view's frame header and `scene.json` (docs/POSE.md).
-    #[arg(long, default_value_t = 0.0)]
     pub pose_jitter_deg: f64,
     /// Which axes the pose error turns: both (a random direction), or only pitch or only yaw
     /// (the sign random), to tell their effects apart.
-    #[arg(long, value_enum, default_value_t = JitterAxes::Both)]
     pub pose_jitter_axes: JitterAxes,
     /// Study option: every terrain and tank sample seen from one pose, the middle of the drawn
     /// ranges (tilt 20°, boresight meeting flat ground at 2.75 m, heading 0); the terrain and
     /// the objects stay as drawn. Measures what the pose's spread costs (docs/ACCURACY.md).
-    #[arg(long)]
     pub fixed_pose: bool,
 }
 
 /// Axes of `--pose-jitter-deg`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JitterAxes {
     /// Pitch and yaw, direction uniform.
     Both,
@@ -294,7 +279,7 @@ pub fn jitter_pose(scene: &mut Scene, jitter_deg: f64, axes: JitterAxes) {
 pub const SITE_REFLECTIVITY: f64 = 0.6;
 
 /// `simulate --export-mesh FILE`: writes sample 0's scene as a mesh.
-fn export_mesh(kind: SceneKind, args: &SimulateArgs, path: &Path) -> Result<()> {
+fn export_mesh(kind: SceneKind, args: &SimulateOptions, path: &Path) -> Result<()> {
     let format = crate::mesh::MeshFormat::from_path(path)?;
     let scene = if args.whole_tank {
         ensure!(
@@ -350,7 +335,7 @@ pub fn check_params(params: &SonarSimParams) -> Result<()> {
 }
 
 /// Runs `host-sim simulate`.
-pub fn run(args: &SimulateArgs) -> Result<()> {
+pub fn run(args: &SimulateOptions) -> Result<()> {
     let site = args.site.as_deref().map(Site::load).transpose()?;
     let kind = match (&site, args.scene) {
         (Some(_), _) => SceneKind::Site,

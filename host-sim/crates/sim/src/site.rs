@@ -3,7 +3,7 @@
 //!
 //! The mesh is cast against through a BVH (the `bvh` crate, f64 boxes) with the same exact
 //! Möller–Trumbore test the heightfields use, so a site is one more surface of the scene's
-//! [`World`](crate::scene::World): views, ground-truth depth and mask come out of the same
+//! [`World`](crate::world::World): views, ground-truth depth and mask come out of the same
 //! code as for the procedural scenes. Each sample's pose is drawn from its own seed (as the
 //! procedural scenes' are) within a [`Region`], and redrawn while it lies inside geometry or
 //! its range window meets nothing.
@@ -24,8 +24,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::mesh::{content_hash, parse_mesh, Mesh, MeshFormat};
+use crate::ray::ray_triangle;
 use crate::scene::{
-    ray_triangle, sample_seed, uniform, view_rolls_deg, Object, Scene, SceneKind, SonarPose, Split,
+    sample_seed, uniform, view_rolls_deg, Object, Scene, SceneKind, SonarPose, Split,
     SLANT_RANGE_M, TILT_RANGE_DEG,
 };
 

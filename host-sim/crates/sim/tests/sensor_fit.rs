@@ -5,7 +5,7 @@
 
 use epssn_sim::render::SonarSimParams;
 use epssn_sim::scene::SceneKind;
-use epssn_sim::sensor_fit::{fit, log_gamma_skewness, trigamma, Bench, FitSensorArgs};
+use epssn_sim::sensor_fit::{fit, log_gamma_skewness, trigamma, Bench, FitSensorOptions};
 use epssn_sim::sensor_stats::measure_recording;
 use epssn_sim::simulate::write_aris;
 
@@ -160,7 +160,7 @@ fn fit_file(bytes: &[u8]) -> String {
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("bad.aris");
     std::fs::write(&rec, bytes).unwrap();
-    let args = FitSensorArgs {
+    let args = FitSensorOptions {
         recording: rec,
         out: dir.path().join("p.json"),
         params: None,

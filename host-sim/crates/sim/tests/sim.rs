@@ -13,8 +13,9 @@ use epssn::geometry::{cartesian_to_polar, fractional_index, polar_to_cartesian, 
 use epssn_sim::dataset::{sample_dirs, Sample};
 use epssn_sim::groundtruth::{front_depth, polar_image};
 use epssn_sim::render::SonarSimParams;
-use epssn_sim::scene::{generate, SceneKind, SonarPose, Split, World};
-use epssn_sim::simulate::{run, simulate_scene, SimulateArgs};
+use epssn_sim::scene::{generate, SceneKind, SonarPose, Split};
+use epssn_sim::simulate::{run, simulate_scene, SimulateOptions};
+use epssn_sim::world::World;
 
 /// First-hit range of the ray at (azimuth, elevation) from the origin against a sphere,
 /// written out independently of the simulator.
@@ -77,7 +78,7 @@ fn simulate_jittered(
     preview: bool,
     jitter: f64,
 ) {
-    run(&SimulateArgs {
+    run(&SimulateOptions {
         scene: Some(scene),
         site: None,
         region: None,
@@ -571,7 +572,7 @@ fn ping_frames_are_written_as_frames_whose_average_is_the_view() {
     };
     let params_file = dir.path().join("params.json");
     std::fs::write(&params_file, serde_json::to_string(&params).unwrap()).unwrap();
-    run(&SimulateArgs {
+    run(&SimulateOptions {
         scene: Some(SceneKind::Artificial),
         site: None,
         region: None,

@@ -8,10 +8,11 @@ use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS};
 use epssn_sim::groundtruth::front_depth;
 use epssn_sim::mesh::{to_bytes, MeshFormat};
 use epssn_sim::render::SonarSimParams;
-use epssn_sim::scene::{generate, Object, Scene, SceneKind, Split, World};
-use epssn_sim::simulate::{run, simulate_scene, simulate_site_scene, JitterAxes, SimulateArgs};
+use epssn_sim::scene::{generate, Object, Scene, SceneKind, Split};
+use epssn_sim::simulate::{run, simulate_scene, simulate_site_scene, JitterAxes, SimulateOptions};
 use epssn_sim::site::{Region, Site};
 use epssn_sim::tessellate::scene_mesh;
+use epssn_sim::world::World;
 
 /// Writes `scene`'s mesh as `name` in `dir` and loads it as a site.
 fn export(scene: &Scene, dir: &Path, name: &str) -> (PathBuf, Site) {
@@ -189,8 +190,8 @@ fn stl_obj_and_ply_of_one_mesh_give_identical_samples() {
     }
 }
 
-fn site_args(site: &Path, region: Option<PathBuf>, out: &Path) -> SimulateArgs {
-    SimulateArgs {
+fn site_args(site: &Path, region: Option<PathBuf>, out: &Path) -> SimulateOptions {
+    SimulateOptions {
         scene: None,
         site: Some(site.to_path_buf()),
         region,
@@ -308,7 +309,7 @@ fn a_site_without_a_valid_pose_is_refused() {
 fn shipped_tank_is_the_whole_tank_export() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("tank.stl");
-    let args = SimulateArgs {
+    let args = SimulateOptions {
         scene: Some(SceneKind::Artificial),
         site: None,
         export_mesh: Some(path.clone()),

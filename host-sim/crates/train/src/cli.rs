@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
@@ -16,77 +15,59 @@ use super::{
 use epssn_eval::data::{load_dir, split_dir, Sample};
 use epssn_eval::summary::data_summary;
 
-/// Arguments of `host-sim train`.
-#[derive(Args, Debug, Clone)]
-pub struct TrainArgs {
+/// Options of `host-sim train`.
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
     /// Scene name (sphere, terrain, artificial); names the default output folder.
-    #[arg(long)]
     pub scene: String,
     /// Simulated data folder with `train/` (and optionally `val/`) sample folders.
-    #[arg(long)]
     pub data: PathBuf,
     /// Epochs over the training split.
-    #[arg(long, default_value_t = 60)]
     pub epochs: usize,
     /// Batch size (default: the spec's).
-    #[arg(long)]
     pub batch: Option<usize>,
     /// Continue from `OUT/checkpoint/`, or, when a finished run left none, from `OUT`'s weights
     /// and loss history with a fresh optimizer state (to train a finished run further).
-    #[arg(long)]
     pub resume: bool,
     /// Output folder (default `weights/<scene>`).
-    #[arg(long)]
     pub out: Option<PathBuf>,
     /// Model spec (default: the one this build was generated from, `weights/epssn-s.json`
     /// unless `EPSSN_SPEC` named another; the quantiser and the library follow the build's).
-    #[arg(long)]
     pub spec: Option<PathBuf>,
     /// Views (default: the spec's; 1 = reference as its own source).
-    #[arg(long)]
     pub views: Option<usize>,
     /// Seed of weight initialisation and shuffling.
-    #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Minutes between checkpoints inside an epoch (a checkpoint is also written every epoch).
-    #[arg(long, default_value_t = 5.0)]
     pub checkpoint_minutes: f64,
     /// Use at most this many training samples.
-    #[arg(long)]
     pub limit: Option<usize>,
     /// Use at most this many validation samples.
-    #[arg(long, default_value_t = 200)]
     pub val_limit: usize,
     /// Only time this many training steps (after one warm-up step) and exit without saving.
-    #[arg(long)]
     pub bench_steps: Option<usize>,
     /// Start from the weights of another trained model (its `model.safetensors`) with the same
     /// layers: convolution weights do not depend on the image size, so a model of EPSSN-S
     /// starts EPSSN-P (docs/PAPER.md). Fresh optimizer state and schedule; ignored on --resume
     /// from a checkpoint.
-    #[arg(long, conflicts_with = "bench_steps")]
     pub init_from: Option<PathBuf>,
     /// Learning rate before the halving (default: the spec's `training.lr`). A lower rate
     /// fine-tunes a trained model (`--init-from`) without first undoing it; the manifest records
     /// the rate used, and a resumed run must pass the same one.
-    #[arg(long)]
     pub lr: Option<f64>,
     /// Weight of a two-hot cross-entropy term on the range bins beside the paper's L1 loss
     /// (train.rs; 0: L1 alone). Validation loss stays the L1 term. A resumed run must pass the
     /// same weight.
-    #[arg(long, default_value_t = 0.0)]
     pub ce_weight: f64,
     /// Weight of the no-return term (train.rs): the binary cross-entropy of each ray's last
     /// (first) bin mass against "met nothing" ("met something nearer") in its label; with it
     /// the two-hot labels of out-of-window pixels sit on the end bins. 0: no such term. A
     /// resumed run must pass the same weight.
-    #[arg(long, default_value_t = 0.0)]
     pub no_return_weight: f64,
     /// Quantisation-aware training: round every activation, in each forward pass, to the int8
     /// grid of the activation scales in this folder's `quantisation.json` (a quantised model of
     /// the same spec, usually the one `--init-from` names), the gradient passing the rounding
     /// unchanged. A resumed run must pass the same scales.
-    #[arg(long)]
     pub fake_quant: Option<PathBuf>,
 }
 
@@ -281,7 +262,7 @@ struct Plan {
 }
 
 impl Plan {
-    fn of(args: &TrainArgs) -> Result<Self> {
+    fn of(args: &TrainOptions) -> Result<Self> {
         let spec_path = args
             .spec
             .clone()
@@ -358,7 +339,7 @@ impl Plan {
 }
 
 /// Runs `host-sim train`.
-pub fn train(args: &TrainArgs) -> Result<()> {
+pub fn train(args: &TrainOptions) -> Result<()> {
     let started = Instant::now();
     let plan = Plan::of(args)?;
     if let Some(steps) = args.bench_steps {
@@ -391,7 +372,7 @@ pub fn train(args: &TrainArgs) -> Result<()> {
 
 /// The trainer and its state: from `OUT/checkpoint/` or a finished run in `OUT` with
 /// `--resume`, else fresh (from `--init-from`'s weights or a seeded initialisation).
-fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState)> {
+fn start_or_resume(args: &TrainOptions, plan: &Plan) -> Result<(Trainer, TrainState)> {
     let (spec, views, batch, lr) = (&plan.spec, plan.views, plan.batch, plan.lr);
     let ckpt = plan.out.join("checkpoint");
     // A resumed run keeps its counters and history and takes this run's epochs and rates.
@@ -489,7 +470,7 @@ fn start_or_resume(args: &TrainArgs, plan: &Plan) -> Result<(Trainer, TrainState
 /// Trains until `args.epochs`, validating and checkpointing at every epoch's end and every
 /// `--checkpoint-minutes` inside one.
 fn run_epochs(
-    args: &TrainArgs,
+    args: &TrainOptions,
     plan: &Plan,
     trainer: &mut Trainer,
     state: &mut TrainState,
@@ -558,7 +539,7 @@ fn run_epochs(
 }
 
 /// The finished run's record: spec, data, settings, schedule, loss and final losses.
-fn manifest(args: &TrainArgs, plan: &Plan, state: &TrainState) -> serde_json::Value {
+fn manifest(args: &TrainOptions, plan: &Plan, state: &TrainState) -> serde_json::Value {
     let spec = &plan.spec;
     let last = state.history.last();
     serde_json::json!({
@@ -597,7 +578,7 @@ fn manifest(args: &TrainArgs, plan: &Plan, state: &TrainState) -> serde_json::Va
 }
 
 /// The training loss's formula as the manifest states it.
-fn loss_text(args: &TrainArgs) -> String {
+fn loss_text(args: &TrainOptions) -> String {
     let mut s = String::from("mean over pixels of w*|d_hat - clamp(d, r_min, r_max)|");
     if args.ce_weight > 0.0 {
         s += " + ce_weight * mean over pixels of w*CE(two-hot(clamp(d)), softmax over range bins)";

@@ -677,7 +677,7 @@ impl EpssnModel {
     pub fn forward(
         &self,
         views: &[Tensor<4>],
-        mut sink: Option<&mut Vec<Activation>>,
+        sink: Option<&mut Vec<Activation>>,
     ) -> Result<ForwardOut> {
         let st = &self.statics;
         let nv = views.len();
@@ -686,21 +686,37 @@ impl EpssnModel {
             "the model takes 2 or 3 views, got {nv}"
         );
         let [b, _, _, _] = views[0].dims();
-        let recording = sink.is_some();
-        let mut record = |name: &str, t: TensorData| {
-            if let Some(s) = sink.as_deref_mut() {
-                s.push(Activation {
-                    name: name.to_string(),
-                    shape: t.shape().to_vec(),
-                    data: t.convert::<f32>().try_to_vec::<f32>().unwrap_or_default(),
-                });
-            }
-        };
+        let mut rec = Recorder { sink };
+        let x = self.features(views, &mut rec)?;
+        let device = x.device();
+        let cost = st.cost_volume(x, b, nv)?;
+        rec.record("cost", &cost);
+        let logits = self.cost_net(cost, &mut rec)?;
+        let [_, _, e, r, a] = logits.dims();
+        ensure!(
+            r == st.depth_bins.len(),
+            "head gives {r} range bins, spec has {}",
+            st.depth_bins.len()
+        );
+        let p = softmax(logits.clone(), 3);
+        let bins = Tensor::<1>::from_data(TensorData::new(st.depth_bins.clone(), [r]), &device)
+            .reshape([1, 1, 1, r, 1]);
+        // The end bins may reach beyond the window (spec `end_bin_offset`); the depth is
+        // clamped to it, as in the int8 soft-argmax.
+        let depth = (p.clone() * bins)
+            .sum_dim(3)
+            .reshape([b, e, a])
+            .clamp(st.r_min, st.r_max);
+        rec.record("prob", &p);
+        rec.record("depth", &depth);
+        Ok(ForwardOut { depth, logits })
+    }
 
+    /// The feature net on every view, stacked along the batch (view k's samples at k·B).
+    fn features(&self, views: &[Tensor<4>], rec: &mut Recorder) -> Result<Tensor<4>> {
+        let st = &self.statics;
         let mut x = Tensor::cat(views.to_vec(), 0).div_scalar(255.0);
-        if recording {
-            record("input", x.to_data());
-        }
+        rec.record("input", &x);
         for (i, layer) in self.net.feature.iter().enumerate() {
             let conv = layer
                 .conv2d
@@ -714,54 +730,14 @@ impl EpssnModel {
                 x = relu(x);
             }
             x = st.quantised(&st.feature_names[i], x);
-            if recording {
-                record(&st.feature_names[i], x.to_data());
-            }
+            rec.record(&st.feature_names[i], &x);
         }
-        let [_, c, h, wf] = x.dims();
-        let n = st.planes;
-        let device = x.device();
-        let reference: Tensor<5> = x
-            .clone()
-            .narrow(0, 0, b)
-            .unsqueeze_dim::<5>(2)
-            .expand([b, c, n, h, wf]);
-        let mut volumes = vec![reference];
-        for k in 1..nv {
-            volumes.push(st.warp(x.clone().narrow(0, k * b, b), k)?);
-        }
-        let mean = volumes
-            .iter()
-            .cloned()
-            .reduce(|a, v| a + v)
-            .expect("at least two views")
-            .div_scalar(nv as f32);
-        let variance = volumes
-            .into_iter()
-            .map(|v| {
-                let d = v - mean.clone();
-                d.clone() * d
-            })
-            .reduce(|a, v| a + v)
-            .expect("at least two views")
-            .div_scalar(nv as f32);
-        let means = st.mean_channels;
-        let cost = if means == 0 {
-            variance
-        } else {
-            Tensor::cat(
-                vec![
-                    variance.narrow(1, 0, c - means),
-                    relu(mean.narrow(1, c - means, means)),
-                ],
-                1,
-            )
-        };
-        let cost = st.quantised("cost", cost);
-        if recording {
-            record("cost", cost.to_data());
-        }
+        Ok(x)
+    }
 
+    /// The cost net from the cost volume, skips added by name: the head's logits.
+    fn cost_net(&self, cost: Tensor<5>, rec: &mut Recorder) -> Result<Tensor<5>> {
+        let st = &self.statics;
         let mut named: BTreeMap<&str, Tensor<5>> = BTreeMap::new();
         named.insert("cost", cost.clone());
         let mut y = cost;
@@ -786,32 +762,76 @@ impl EpssnModel {
                 y = y + s.clone();
             }
             y = st.quantised(&st.cost_names[i], y);
-            if recording {
-                record(&st.cost_names[i], y.to_data());
-            }
+            rec.record(&st.cost_names[i], &y);
             named.insert(st.cost_names[i].as_str(), y.clone());
         }
-        let logits = y;
-        let [_, _, e, r, a] = logits.dims();
-        ensure!(
-            r == st.depth_bins.len(),
-            "head gives {r} range bins, spec has {}",
-            st.depth_bins.len()
-        );
-        let p = softmax(logits.clone(), 3);
-        let bins = Tensor::<1>::from_data(TensorData::new(st.depth_bins.clone(), [r]), &device)
-            .reshape([1, 1, 1, r, 1]);
-        // The end bins may reach beyond the window (spec `end_bin_offset`); the depth is
-        // clamped to it, as in the int8 soft-argmax.
-        let depth = (p.clone() * bins)
-            .sum_dim(3)
-            .reshape([b, e, a])
-            .clamp(st.r_min, st.r_max);
-        if recording {
-            record("prob", p.to_data());
-            record("depth", depth.to_data());
+        Ok(y)
+    }
+}
+
+/// Where `forward` appends its intermediate activations, if anywhere: a tensor is read back
+/// from the device only when one is kept.
+struct Recorder<'a> {
+    sink: Option<&'a mut Vec<Activation>>,
+}
+
+impl Recorder<'_> {
+    fn record<const D: usize>(&mut self, name: &str, t: &Tensor<D>) {
+        if let Some(s) = self.sink.as_deref_mut() {
+            let t = t.to_data();
+            s.push(Activation {
+                name: name.to_string(),
+                shape: t.shape().to_vec(),
+                data: t.convert::<f32>().try_to_vec::<f32>().unwrap_or_default(),
+            });
         }
-        Ok(ForwardOut { depth, logits })
+    }
+}
+
+impl Statics {
+    /// The cost volume of the features `x` of `nv` views of `b` samples each: the variance of
+    /// the reference and the warped sources over the views, its last `mean_channels` channels
+    /// the (ReLU'd) mean instead; on the int8 grid when training quantisation-aware.
+    fn cost_volume(&self, x: Tensor<4>, b: usize, nv: usize) -> Result<Tensor<5>> {
+        let [_, c, h, wf] = x.dims();
+        let n = self.planes;
+        let reference: Tensor<5> = x
+            .clone()
+            .narrow(0, 0, b)
+            .unsqueeze_dim::<5>(2)
+            .expand([b, c, n, h, wf]);
+        let mut volumes = vec![reference];
+        for k in 1..nv {
+            volumes.push(self.warp(x.clone().narrow(0, k * b, b), k)?);
+        }
+        let mean = volumes
+            .iter()
+            .cloned()
+            .reduce(|a, v| a + v)
+            .expect("at least two views")
+            .div_scalar(nv as f32);
+        let variance = volumes
+            .into_iter()
+            .map(|v| {
+                let d = v - mean.clone();
+                d.clone() * d
+            })
+            .reduce(|a, v| a + v)
+            .expect("at least two views")
+            .div_scalar(nv as f32);
+        let means = self.mean_channels;
+        let cost = if means == 0 {
+            variance
+        } else {
+            Tensor::cat(
+                vec![
+                    variance.narrow(1, 0, c - means),
+                    relu(mean.narrow(1, c - means, means)),
+                ],
+                1,
+            )
+        };
+        Ok(self.quantised("cost", cost))
     }
 }
 

@@ -50,24 +50,7 @@ pub fn plot_two(
     labels: &Labels,
 ) -> Result<()> {
     let mut img = RgbImage::from_pixel(W, H, Rgb([255, 255, 255]));
-    let all = first.iter().chain(second).filter(|p| p.1.is_finite());
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for &(x, y) in all {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
-    }
-    if x0 > x1 {
-        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
-    }
-    y0 = y0.min(0.0);
-    if x1 <= x0 {
-        x1 = x0 + 1.0;
-    }
-    if y1 <= y0 {
-        y1 = y0 + 1.0;
-    }
+    let (x0, x1, y0, y1) = bounds(first, second);
     let (pw, ph) = (
         (W as i64 - LEFT - RIGHT) as f64,
         (H as i64 - TOP - BOTTOM) as f64,
@@ -124,20 +107,7 @@ pub fn plot_two(
     }
     if let Some((mx, caption)) = labels.marker {
         if (x0..=x1).contains(&mx) {
-            let (px, _) = map((mx, y0));
-            let grey_dark = Rgb([120, 120, 120]);
-            // Dashed, so that it does not read as a third curve.
-            let mut y = TOP;
-            while y < H as i64 - BOTTOM {
-                line(
-                    &mut img,
-                    (px, y),
-                    (px, (y + 4).min(H as i64 - BOTTOM)),
-                    grey_dark,
-                );
-                y += 8;
-            }
-            draw_text(&mut img, px + 4, TOP + 40, caption, grey_dark);
+            draw_marker(&mut img, map((mx, y0)).0, caption);
         }
     }
     draw_text(
@@ -165,6 +135,47 @@ pub fn plot_two(
     }
     img.save(path)?;
     Ok(())
+}
+
+/// The plot's x and y ranges `(x0, x1, y0, y1)` over both curves' finite points: y from 0 at
+/// most, neither range empty.
+fn bounds(first: &[(f64, f64)], second: &[(f64, f64)]) -> (f64, f64, f64, f64) {
+    let all = first.iter().chain(second).filter(|p| p.1.is_finite());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in all {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if x0 > x1 {
+        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
+    }
+    y0 = y0.min(0.0);
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+    }
+    if y1 <= y0 {
+        y1 = y0 + 1.0;
+    }
+    (x0, x1, y0, y1)
+}
+
+/// A vertical marker at pixel column `px` with its caption.
+fn draw_marker(img: &mut RgbImage, px: i64, caption: &str) {
+    let grey_dark = Rgb([120, 120, 120]);
+    // Dashed, so that it does not read as a third curve.
+    let mut y = TOP;
+    while y < H as i64 - BOTTOM {
+        line(
+            img,
+            (px, y),
+            (px, (y + 4).min(H as i64 - BOTTOM)),
+            grey_dark,
+        );
+        y += 8;
+    }
+    draw_text(img, px + 4, TOP + 40, caption, grey_dark);
 }
 
 #[cfg(test)]

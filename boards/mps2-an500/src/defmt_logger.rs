@@ -1,5 +1,5 @@
 //! A defmt global logger that writes the encoded frames to the semihosting console (decode
-//! them with `defmt-print -e target/thumbv7em-none-eabihf/release/epssn-firmware`).
+//! them with `defmt-print -e target/thumbv7em-none-eabihf/release/epssn-mps2-an500`).
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
