@@ -106,7 +106,7 @@ EPSSN_BLOB="$PWD/weights/general-3view/epssn-s.q8.bin" "$host_sim" sil \
 
 step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance tests, QEMU, SIL"
 # The second configuration from the same code, in its own target directories (target/epssn-p,
-# boards/mps2-an500/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
+# boards/mps2-an500/target/epssn-p) so neither build thrashes the other's artefacts
 # (the SIL runs through epssn-sil, the sil crate's own binary).
 p_start=$SECONDS
 EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil-core \

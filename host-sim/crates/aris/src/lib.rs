@@ -1,7 +1,7 @@
 //! ARIS sonar files for the epssn host tools: recordings (DDF_05) read and written, the ARIS
 //! beam-angle tables, frames resampled onto the model's polar grid (and the check that a
 //! recording fits the model), the model spec loaded at run time, NPY arrays, and
-//! `host-sim inspect`. No burn, no simulator: everything that only reads or writes files.
+//! `host-sim inspect`. No simulator: everything that only reads or writes files.
 
 #![deny(missing_docs)]
 
