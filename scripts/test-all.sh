@@ -36,8 +36,6 @@ python3 scripts/check-locks.py
 
 step "clippy (host workspace, all targets, -D warnings)"
 cargo clippy --workspace --all-targets -- -D warnings
-# host-sim's `train` feature (the `train` command, burn): the code only that build compiles.
-cargo clippy -p host-sim --features train --all-targets -- -D warnings
 
 step "no_std library build for thumbv7em-none-eabihf (with and without defmt); clippy on the dsp and mve paths"
 cargo build -p epssn --lib --target thumbv7em-none-eabihf
@@ -84,8 +82,6 @@ RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps
 
 step "host tests (workspace, including the QEMU software-in-the-loop test)"
 cargo test --workspace
-# `host-sim train` through the binary: only the `train` feature builds it.
-cargo test -p host-sim --features train --test cli
 
 step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 # The binary `cargo test` just built for the integration tests: no second build of anything.
@@ -110,7 +106,7 @@ EPSSN_BLOB="$PWD/weights/general-3view/epssn-s.q8.bin" "$host_sim" sil \
 
 step "EPSSN-P, the paper's 512 x 128 (weights/epssn-p.json): zero-tolerance tests, QEMU, SIL"
 # The second configuration from the same code, in its own target directories (target/epssn-p,
-# boards/mps2-an500/target/epssn-p) so neither build thrashes the other's artefacts; no burn is built
+# boards/mps2-an500/target/epssn-p) so neither build thrashes the other's artefacts
 # (the SIL runs through epssn-sil, the sil crate's own binary).
 p_start=$SECONDS
 EPSSN_SPEC=weights/epssn-p.json cargo test -p epssn-tests -p epssn-spec -p epssn-sil-core \

@@ -2,20 +2,23 @@
 # Trains the general model (one model for every scene) into weights/general/ and writes its
 # held-out tables, one per scene.
 #   bash scripts/train-general.sh TRAIN_PER_SCENE TEST_PER_SCENE EPOCHS [DATA_ROOT] [SPEC]
-# HOST_SIM=path/to/host-sim runs a prebuilt binary (so editing the tree does not rebuild mid-run).
+# HOST_SIM=path/to/host-sim runs a prebuilt binary for simulate, quantise and eval (so editing the
+# tree does not rebuild mid-run). Training is `epssn-train fit` (the PyTorch trainer,
+# docs/TRAINING.md) through scripts/epssn-train.sh: EPSSN_TRAIN=path/to/epssn-train, else the venv
+# target/venv-train.
 # WEIGHTS=weights/paper trains into another folder; for another spec the binary must be built
 # from it (EPSSN_SPEC, docs/PAPER.md), as must the data (the simulator draws the spec's grid).
 # SEARCH_PASSES (default 3) and SEARCH_PIXELS (default all) set the quantiser's search passes and
 # the pixels it scores (the shipped blob's settings, chosen on the validation split with
 # CALIB_SAMPLES: docs/ACCURACY.md); INIT_FROM=weights/general starts
 # from another model's weights (same layers, e.g. EPSSN-S's for EPSSN-P) instead of at random;
-# LR sets the learning rate before its halving (default: the spec's), e.g. to fine-tune;
+# LR sets the learning rate before its halving (default: the spec's; `fit --lr`), e.g. to fine-tune;
 # CALIB_SAMPLES (default 256) sets the quantiser's calibration samples; CE_WEIGHT adds the
-# two-hot cross-entropy term to the loss (`train --ce-weight`, docs/ACCURACY.md); NO_RETURN_WEIGHT
-# adds the no-return term (`train --no-return-weight`: the end bins' mass against the label's
+# two-hot cross-entropy term to the loss (`fit --ce-weight`, docs/ACCURACY.md); NO_RETURN_WEIGHT
+# adds the no-return term (`fit --no-return-weight`: the end bins' mass against the label's
 # "met nothing" / "nearer than the window", what the spec's `no_return_mass` decides on);
 # FAKE_QUANT=weights/general trains quantisation-aware on that folder's activation scales
-# (`train --fake-quant`, docs/QUANTISATION.md).
+# (`fit --fake-quant`, docs/QUANTISATION.md); INIT_FROM is `fit --init-from`, VIEWS `fit --views`.
 # VIEWS=3 trains a three-view model (rolls 0, +7, +14 degrees; give it a DATA_ROOT of its own,
 # the data are simulated with the third view): the manifest and the blob record the count, and
 # eval, run and the firmware's pairing follow it.
@@ -35,10 +38,7 @@ pixels=${SEARCH_PIXELS:-all}
 views=(${VIEWS:+--views "$VIEWS"})
 sim_params=(${SIM_PARAMS:+--params "$SIM_PARAMS"})
 val_n=${VAL_PER_SCENE:-100}
-hs=(${HOST_SIM:-cargo run --release -q -p host-sim --features train --})
-# glibc's allocator returns the trainer's large tensors to the kernel after every step; keeping
-# them (measured: 6x fewer page faults, 10 % faster steps) costs nothing else.
-export GLIBC_TUNABLES=${GLIBC_TUNABLES:-glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824:glibc.malloc.top_pad=268435456}
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 cd "$(dirname "$0")/.."
 scenes=(sphere terrain artificial)
 have() { [ -d "$1/$(printf %06d $(($2 - 1)))" ]; }
@@ -66,7 +66,7 @@ srcs=("$root/sphere/train" "$root/terrain/train" "$root/artificial/train"); link
 srcs=("$root/sphere-val/test" "$root/terrain-val/test" "$root/artificial-val/test"); link "$mix/val" "$val_n"
 # --resume continues an interrupted run from its checkpoint, or a finished one (weights and loss
 # history, fresh optimizer state) when EPOCHS is larger than it ran; otherwise it starts fresh.
-"${hs[@]}" train --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
+bash scripts/epssn-train.sh fit --scene general --data "$mix" --spec "$spec" --epochs "$epochs" --batch 16 --seed 1 \
   --val-limit $((3 * val_n)) --resume --out "$weights" "${views[@]}" ${INIT_FROM:+--init-from "$INIT_FROM"} ${LR:+--lr "$LR"} ${CE_WEIGHT:+--ce-weight "$CE_WEIGHT"} \
   ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"} ${FAKE_QUANT:+--fake-quant "$FAKE_QUANT"}
 "${hs[@]}" quantise --weights "$weights" --calib "$mix" --calibration-samples "$calib_n" --percentile 99.99 \

@@ -10,17 +10,18 @@
 # a fine-tune's rate), CE_WEIGHT (default 0.02) and NO_RETURN_WEIGHT (default 0.1) as in
 # train-general.sh; REGION=FILE draws the poses from a region file (docs/SITES.md);
 # SIM_PARAMS=FILE simulates with `simulate --params FILE` (e.g. a noise model from
-# `fit-sensor`). HOST_SIM=path/to/host-sim runs a prebuilt binary (built with --features train).
+# `fit-sensor`). HOST_SIM=path/to/host-sim runs a prebuilt binary for simulate, quantise and eval;
+# training is `epssn-train fit` (EPSSN_TRAIN=path/to/epssn-train, else the venv target/venv-train:
+# scripts/epssn-train.sh), on the spec weights/epssn-s.json (SPEC=... for another).
 # An interrupted run continues with the same command (--resume).
 set -euo pipefail
 site=$1 train_n=$2 test_n=$3 epochs=$4 root=${5:-out/site-tank}
 weights=${WEIGHTS:-weights/site-tank} init=${INIT_FROM:-weights/general} lr=${LR:-2.5e-4}
 ce=${CE_WEIGHT:-0.02} nr=${NO_RETURN_WEIGHT:-0.1} val_n=${VAL_PAIRS:-100}
+spec=${SPEC:-weights/epssn-s.json}
 region=(${REGION:+--region "$REGION"})
 sim_params=(${SIM_PARAMS:+--params "$SIM_PARAMS"})
-hs=(${HOST_SIM:-cargo run --release -q -p host-sim --features train --})
-# As train-general.sh: keep the trainer's large tensors mapped between steps.
-export GLIBC_TUNABLES=${GLIBC_TUNABLES:-glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824:glibc.malloc.top_pad=268435456}
+hs=(${HOST_SIM:-cargo run --release -q -p host-sim --})
 cd "$(dirname "$0")/.."
 have() { [ -d "$1/$(printf %06d $(($2 - 1)))" ]; }
 simulate() { # SPLIT PAIRS SEED OUT
@@ -30,9 +31,9 @@ simulate() { # SPLIT PAIRS SEED OUT
 }
 simulate train "$train_n" 1 "$root"
 simulate test "$val_n" 3 "$root-val"
-# train reads DATA/val/ for its validation loss: a link to the validation poses.
+# fit reads DATA/val/ for its validation loss: a link to the validation poses.
 ln -sfn "$(realpath "$root-val/test")" "$root/val"
-"${hs[@]}" train --scene site --data "$root" --epochs "$epochs" --batch 16 --seed 1 \
+bash scripts/epssn-train.sh fit --scene site --spec "$spec" --data "$root" --epochs "$epochs" --batch 16 --seed 1 \
   --val-limit "$val_n" --resume --out "$weights" --init-from "$init" --lr "$lr" \
   --ce-weight "$ce" --no-return-weight "$nr"
 simulate test "$test_n" 2 "$root"

@@ -3,7 +3,7 @@
 //! labels of a recording from its site (`host-sim label`), the depth figures, the run as an MCAP
 //! file of ROS 2 messages (`mcap_out`) and the sweep's clouds in one frame (`sweep`). Every other
 //! subcommand lives in the host crate of its role (`epssn-aris`, `epssn-sim`, `epssn-quant`,
-//! `epssn-eval`, `epssn-train`, `epssn-sil-core`). Each takes plain options: the command line
+//! `epssn-eval`, `epssn-sil-core`). Each takes plain options: the command line
 //! (clap) is the binary's alone (`main.rs`, `cmd/`).
 
 #![deny(missing_docs)]

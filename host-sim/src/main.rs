@@ -43,9 +43,6 @@ enum Command {
     Sil(cmd::sil::SilArgs),
     /// Per-layer MACs and QEMU Cortex-M7 instructions of the firmware.
     Bench(cmd::bench::BenchArgs),
-    /// Train the float EPSSN on simulated data (build with `--features train`).
-    #[cfg(feature = "train")]
-    Train(cmd::train::TrainArgs),
     /// Evaluate weights on a simulated test folder: the f64 reference network and, with
     /// `--int8`, the int8 library (MAE and CD as in the paper).
     Eval(cmd::eval::EvalArgs),
@@ -66,8 +63,6 @@ fn main() -> ExitCode {
         Command::Metrics(args) => epssn_sim::metrics::run(&args.into()),
         Command::Sil(args) => epssn_sil_core::sil::run(&args.into(), &mut stdout.lock()),
         Command::Bench(args) => epssn_sil_core::bench::run(&args.into(), &mut stdout.lock()),
-        #[cfg(feature = "train")]
-        Command::Train(args) => epssn_train::cli::train(&args.into()),
         Command::Eval(args) => epssn_eval::eval::run(&args.into()),
     };
     match result {

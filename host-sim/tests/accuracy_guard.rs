@@ -128,8 +128,8 @@ fn guard_on(
             sim.extend(["--params", p]);
         }
         host_sim(&sim);
-        // The float maps from the f64 reference network: burn's flex backend gives wrong float
-        // maps for batches of 8 in the dev profile this test runs in (release is right).
+        // The float maps from the f64 reference network: burn's flex backend (the trainer up to
+        // commit 5b1029e) gave wrong float maps for batches of 8 in the dev profile.
         let mut args = vec!["eval", "--data", out, "--int8", "--json", "--breakdown"];
         if let Some(w) = weights {
             args.extend(["--weights", w]);

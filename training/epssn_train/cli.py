@@ -16,8 +16,8 @@ from .device import device_or_exit
 
 def tune_malloc() -> bool:
     """glibc hands every large freed tensor back to the kernel and faults it in again on the
-    next step; raising its thresholds (what scripts/train-general.sh sets for the burn trainer
-    with GLIBC_TUNABLES) keeps them: measured 1.3-1.6x per CPU step. mallopt at run time does
+    next step; raising its thresholds (what scripts/train-general.sh set for the burn trainer
+    with GLIBC_TUNABLES up to commit 5b1029e) keeps them: measured 1.3-1.6x per CPU step. mallopt at run time does
     the same where GLIBC_TUNABLES is unset. False where this is not glibc."""
     if os.environ.get("GLIBC_TUNABLES") or not sys.platform.startswith("linux"):
         return False

@@ -1,4 +1,4 @@
-"""The training loss, as the burn trainer (host-sim/crates/train/src/train.rs) defines it:
+"""The training loss, as the burn trainer (host-sim/crates/train/src/train.rs, at commit 5b1029e) defined it:
 
 `loss = mean_px w·|d̂ − clamp(d)|` (the paper's masked L1, w = λ on mask pixels, 1 elsewhere)
 `+ ce_weight · mean_px w·CE(two-hot(clamp(d)), softmax over R)`

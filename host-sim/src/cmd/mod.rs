@@ -13,5 +13,3 @@ pub mod quantise;
 pub mod run;
 pub mod sil;
 pub mod simulate;
-#[cfg(feature = "train")]
-pub mod train;

@@ -1,6 +1,6 @@
 //! A plain f32 forward pass of EPSSN (straightforward loops, no framework), from the same
 //! float weights the quantiser reads. It serves calibration (the range of every activation)
-//! and cross-checks the burn model; batch norm is applied in inference form.
+//! and is what the PyTorch trainer's float network is checked against; batch norm is applied in inference form.
 
 use std::collections::BTreeMap;
 

@@ -52,7 +52,8 @@ pub struct NamedTensor {
     pub shape: Vec<usize>,
     /// Values in C order.
     pub data: Vec<f32>,
-    /// burn parameter id (kept in checkpoints so the optimizer state matches on resume).
+    /// The burn trainer's parameter id, in folders it wrote up to commit `5b1029e` (kept in
+    /// checkpoints so the optimizer state matched on resume).
     pub id: Option<u64>,
 }
 

@@ -1,5 +1,5 @@
 //! `epssn-sil`: the software-in-the-loop run of `host-sim sil` as a binary of its own, without
-//! the training crate (no burn), so a second configuration (`EPSSN_SPEC`) can be checked in
+//! the rest of host-sim, so a second configuration (`EPSSN_SPEC`) can be checked in
 //! its own target directory in a couple of minutes of build. Same options and report: the
 //! options are host-sim's own `sil` command line, read from its file.
 
