@@ -1,5 +1,5 @@
 //! `host-sim sil`'s command line, and the cores as `--target` names them (`bench` takes it
-//! too). The `epssn-sil` binary (host-sim/crates/sil-cli) parses the same options from this
+//! too). The `epssn-sil` binary (host-sim/sil-cli) parses the same options from this
 //! file.
 
 use std::path::PathBuf;

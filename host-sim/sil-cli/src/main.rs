@@ -5,7 +5,7 @@
 
 use clap::Parser;
 
-#[path = "../../../src/cmd/sil.rs"]
+#[path = "../../src/cmd/sil.rs"]
 mod sil;
 
 /// `host-sim sil`'s options.
