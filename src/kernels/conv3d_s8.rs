@@ -75,7 +75,7 @@ pub fn conv3d_s8_plain(
 /// positions, so each weight load feeds two MACs and there is no index arithmetic in the
 /// inner loop (thumbv7em release: about 2.4 instructions per MAC portable, 1.9 with the
 /// `dsp` feature's SMLAD).
-/// Larger layers fall back to [`conv3d_s8_rows`].
+/// Larger layers fall back to the row-blocked engine (`conv3d_s8_rows`).
 pub fn conv3d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -91,7 +91,7 @@ pub fn conv3d_s8(
 /// [`conv3d_s8`] with parameters whose accumulator bound was verified once
 /// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
 /// line engine works in the caller's `scratch`.
-pub fn conv3d_s8_checked(
+pub(crate) fn conv3d_s8_checked(
     shape: &ConvShape,
     input: &[i8],
     checked: &CheckedParams<'_>,
@@ -161,6 +161,10 @@ fn engine(
 /// tap ranges are computed once per plane/row/column, so the interior and the border run
 /// the same branch-free loops over contiguous kernel rows. No stack buffer; used for layers
 /// whose taps exceed [`COL_LEN`].
+///
+/// Public, hidden from the docs, only for the reference crate's bit-exactness tests, which
+/// compare it with the plain reference on shapes the default kernel sends elsewhere.
+#[doc(hidden)]
 pub fn conv3d_s8_rows(
     shape: &ConvShape,
     input: &[i8],
