@@ -125,10 +125,11 @@ pub(crate) fn skip_lut<'a>(skip: &Skip<'a>, table: &'a Option<[i32; 256]>) -> Sk
 }
 
 /// Requantises one row of one channel's accumulators and stores it: output `q` at
-/// `out[start + q · step]` = ReLU, skip add (table), int8 clamp, as [`crate::kernels::finish`]. The
-/// skip kind and the ReLU are decided once per row, so each output costs the requantisation
-/// and about 8 instructions more. Not inlined: in its own function the loop keeps its
-/// operands in registers instead of reloading them from the engine's stack frame.
+/// `out[start + q · step]` = ReLU, skip add (table), int8 clamp, as
+/// [`crate::kernels::finish`]. The skip kind and the ReLU are decided once per row, so each
+/// output costs the requantisation and about 8 instructions more. Not inlined: in its own
+/// function the loop keeps its operands in registers instead of reloading them from the
+/// engine's stack frame.
 #[inline(never)]
 pub(super) fn requant_row<R: Apply>(
     acc: &[i32],

@@ -14,8 +14,8 @@ pub struct LineScratch {
     pub(super) kept: KeptWeights,
 }
 
-/// The model's layer index ([`crate::kernels::CheckedParams`], which fix its kernel and channels) and
-/// the stride (a transposed convolution's layout depends on it).
+/// The model's layer index ([`crate::kernels::CheckedParams`], which fix its kernel and
+/// channels) and the stride (a transposed convolution's layout depends on it).
 type WeightsKey = (usize, [usize; 3]);
 
 /// Most layers whose laid-out weights `wbuf` holds side by side (the four feature layers).
@@ -74,10 +74,10 @@ impl LineScratch {
     /// they fit the weight buffer beside the other kept layers' (a transposed convolution's
     /// phase by phase; a forward one's when its output channels form one group). For the
     /// model, which runs a layer many times in pieces (the streamed features, d1 and u0):
-    /// the layer is identified by its index in the model ([`crate::kernels::CheckedParams`] carry it),
-    /// not by the weights' address, which other weights could occupy later; parameters not
-    /// from a model are never kept. The model's weights must not change until
-    /// [`LineScratch::forget_weights`].
+    /// the layer is identified by its index in the model
+    /// ([`crate::kernels::CheckedParams`] carry it), not by the weights' address, which other
+    /// weights could occupy later; parameters not from a model are never kept. The model's
+    /// weights must not change until [`LineScratch::forget_weights`].
     pub fn keep_weights(&mut self) {
         // Slots past `len` are never read.
         self.kept.on = true;
