@@ -71,7 +71,7 @@ pub fn conv2d_s8_plain(
 /// [`super::conv3d_s8::COL_LEN`], the im2col engine (of the `line` module, which
 /// [`super::conv3d_s8::conv3d_s8`] uses too; a 2D layer is a 3D one with a trivial third
 /// axis, same memory layout): two output positions per dot product over packed i16 columns.
-/// Otherwise [`conv2d_s8_rows`].
+/// Otherwise the row-blocked engine (`conv2d_s8_rows`).
 pub fn conv2d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -88,7 +88,7 @@ pub fn conv2d_s8(
 /// [`conv2d_s8`] with parameters whose accumulator bound was verified once
 /// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
 /// line engine works in the caller's `scratch`.
-pub fn conv2d_s8_checked(
+pub(crate) fn conv2d_s8_checked(
     shape: &ConvShape,
     input: &[i8],
     checked: &CheckedParams<'_>,
@@ -137,6 +137,10 @@ fn engine(
 /// range of each output position is computed once per row/column (no per-tap bounds test,
 /// the interior and the border run the same branch-free loops over contiguous kernel rows).
 /// No stack buffer.
+///
+/// Public, hidden from the docs, only for the reference crate's bit-exactness tests, which
+/// compare it with the plain reference on shapes the default kernel sends elsewhere.
+#[doc(hidden)]
 pub fn conv2d_s8_rows(
     shape: &ConvShape,
     input: &[i8],

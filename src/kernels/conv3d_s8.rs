@@ -75,7 +75,7 @@ pub fn conv3d_s8_plain(
 /// positions, so each weight load feeds two MACs and there is no index arithmetic in the
 /// inner loop (thumbv7em release: about 2.4 instructions per MAC portable, 1.9 with the
 /// `dsp` feature's SMLAD).
-/// Larger layers fall back to [`conv3d_s8_rows`].
+/// Larger layers fall back to the row-blocked engine (`conv3d_s8_rows`).
 pub fn conv3d_s8(
     shape: &ConvShape,
     input: &[i8],
@@ -91,7 +91,7 @@ pub fn conv3d_s8(
 /// [`conv3d_s8`] with parameters whose accumulator bound was verified once
 /// ([`CheckedParams`]): per call only the shape and the slice lengths are validated, and the
 /// line engine works in the caller's `scratch`.
-pub fn conv3d_s8_checked(
+pub(crate) fn conv3d_s8_checked(
     shape: &ConvShape,
     input: &[i8],
     checked: &CheckedParams<'_>,
@@ -113,7 +113,31 @@ fn engine(
     scratch: &mut LineScratch,
 ) {
     let (params, bound) = (checked.params(), checked.bound());
-    // The line engine where it takes the shape and the fast requantisation fits.
+    // Engine selection, made here only: the first engine that takes the shape runs; one that
+    // declines writes nothing and the next is tried.
+    //
+    //   build          takes the shape when                 engine, inner loop
+    //   mve (M55)      `conv_fits`, fast requantisation,    int8 line (`line::conv_s8`),
+    //                  and `conv_s8`'s own limits: even     `VMLADAV.S8`, 16 MACs an instruction
+    //                  output width, one weight group,
+    //                  few taps per channel, int8 zero
+    //                  point
+    //   dsp (M7)       `conv_fits`, fast requantisation     i16 line (`line::conv`), `SMLAD`
+    //                                                       2 channels × 2 positions, 8 MACs per
+    //                                                       `LDRD` and 4 `SMLAD`; tap-table fill
+    //   portable       `conv_fits`, fast requantisation     i16 line, the same loop in plain Rust
+    //   any            `I · kd · kh · kw <= COL_LEN`        im2col: two positions' i16 columns
+    //                                                       on the stack (`SMLAD` with `dsp`)
+    //   any            otherwise                            `rows_engine`: no buffer at all
+    //
+    // Why: the line gathers each input once per output row and neighbouring positions share
+    // their windows, so it costs the fewest instructions per MAC; the EPSSN forward layers all
+    // pass `conv_fits` (`line`'s tests check the spec's shapes). The line is built for the
+    // fast requantisation alone, and a Helium build holds only the int8 line, since the flash
+    // has room for one forward line engine: a shape the line declines falls to im2col, which
+    // needs one output's taps on the stack (`COL_LEN`, 4 KiB); larger ones take the row
+    // engine, slower but bufferless.
+    // `dsp` against portable is chosen inside `crate::arch`, not here.
     if conv_fits(shape)
         && run_conv(
             shape,
@@ -137,6 +161,10 @@ fn engine(
 /// tap ranges are computed once per plane/row/column, so the interior and the border run
 /// the same branch-free loops over contiguous kernel rows. No stack buffer; used for layers
 /// whose taps exceed [`COL_LEN`].
+///
+/// Public, hidden from the docs, only for the reference crate's bit-exactness tests, which
+/// compare it with the plain reference on shapes the default kernel sends elsewhere.
+#[doc(hidden)]
 pub fn conv3d_s8_rows(
     shape: &ConvShape,
     input: &[i8],

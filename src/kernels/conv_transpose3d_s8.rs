@@ -138,7 +138,7 @@ pub fn conv_transpose3d_s8(
 /// [`conv_transpose3d_s8`] with parameters whose accumulator bound was verified once
 /// ([`CheckedParams`]): per call only the shape, the slice lengths and the skip multiplier
 /// are validated, and the line engine works in the caller's `scratch`.
-pub fn conv_transpose3d_s8_checked(
+pub(crate) fn conv_transpose3d_s8_checked(
     shape: &ConvShape,
     input: &[i8],
     checked: &CheckedParams<'_>,
