@@ -65,6 +65,20 @@ else
   trainer=(target/venv-train/bin/epssn-train)
 fi
 
+# The data must be on EPSSN-P's grid (a host-sim built for another spec draws its own): one probe
+# sample first, so that a wrong binary stops before it simulates, and marks, whole splits.
+want=$(python3 -c 'import json, sys; o = json.load(open(sys.argv[1]))["output"]
+print("(%d, %d, )" % (o["elevation_rows"], o["azimuth_columns"]))' "$spec")
+probe=$(mktemp -d)
+"$hs" simulate --scene sphere --pairs 1 --seed 1 --out "$probe" --no-preview >/dev/null 2>&1 ||
+  { echo "$hs simulate failed" >&2; exit 1; }
+if ! head -c 128 "$probe/train/000000/depth.npy" | grep -aqF "'shape': $want"; then
+  rm -rf "$probe"
+  echo "$hs draws depth maps other than $want: build it with EPSSN_SPEC=$spec" >&2
+  exit 1
+fi
+rm -rf "$probe"
+
 # A split is done when its marker records at least the pairs asked for (samples are written in
 # parallel, so the last folder existing does not prove the others are complete).
 marker() { echo "$1/.done-$2"; } # ROOT SPLIT
@@ -139,15 +153,6 @@ if [ "$protocol" = general ]; then
   fit_data=$data/mix fit_n=$((3 * train_n)) fit_val=$((3 * val_n))
 else
   fit_data=$data fit_n=$train_n fit_val=$val_n
-fi
-
-# The data must be on EPSSN-P's grid (a host-sim built for another spec draws its own).
-want=$(python3 -c 'import json, sys; o = json.load(open(sys.argv[1]))["output"]
-print("(%d, %d, )" % (o["elevation_rows"], o["azimuth_columns"]))' "$spec")
-first=$(realpath "$fit_data/train/000000")
-if ! head -c 128 "$first/depth.npy" | grep -aqF "'shape': $want"; then
-  echo "$first/depth.npy is not $want: HOST_SIM must be built with EPSSN_SPEC=$spec" >&2
-  exit 1
 fi
 
 # fit is done when OUT's manifest is epssn-train's for these epochs and samples and was written
