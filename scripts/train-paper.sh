@@ -176,7 +176,7 @@ if ! fit_done; then
 fi
 
 blob=$out/$(basename "$spec" .json).q8.bin
-if ! [ "$blob" -nt "$out/model.safetensors" ]; then
+if ! [ "$blob" -nt "$out/model.safetensors" ] || ! [ "$out/quantisation.json" -nt "$out/model.safetensors" ]; then
   "$hs" quantise --weights "$out" --calib "$fit_data" --calibration-samples "$calib_n" \
     --percentile 99.99 --search --search-passes "$passes" --search-pixels "$pixels"
 fi
