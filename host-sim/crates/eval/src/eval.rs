@@ -67,14 +67,17 @@ pub fn run(args: &EvalOptions) -> Result<()> {
         args.limit,
     )?;
     ensure!(!set.is_empty(), "no samples in {}", dir.display());
-    if let Some(out) = &args.save_depth {
-        save_depth(&weights, &set, out)?;
-    }
     let looks = Looks::of(&dir, &weights);
     for w in &looks.warnings {
         eprintln!("warning: {w}");
     }
-    let scores = score(&weights, &set, args.int8, args.breakdown)?;
+    let scores = score(
+        &weights,
+        &set,
+        args.int8,
+        args.breakdown,
+        args.save_depth.as_deref(),
+    )?;
     let ctx = Report {
         weights: &weights,
         dir: &dir,
@@ -153,7 +156,15 @@ struct Scores {
 
 /// Scores every sample: the float map from the f64 reference network, the int8 map from the
 /// library on the folder's blob when `int8`.
-fn score(weights_dir: &Path, set: &[Sample], int8: bool, breakdown: bool) -> Result<Scores> {
+/// With `save_depth`, each sample's float map is also written there (`save_depth`, below) from
+/// the same forward pass that scores it.
+fn score(
+    weights_dir: &Path,
+    set: &[Sample],
+    int8: bool,
+    breakdown: bool,
+    save_depth_to: Option<&Path>,
+) -> Result<Scores> {
     let bundle = weights::load(weights_dir)?;
     let folded = floatref::fold_all(&bundle.float)?;
     let model = if int8 {
@@ -168,6 +179,9 @@ fn score(weights_dir: &Path, set: &[Sample], int8: bool, breakdown: bool) -> Res
     let mut s = Scores::default();
     for sample in set {
         let float = float_depth(&folded, sample)?;
+        if let Some(out) = save_depth_to {
+            save_depth(out, sample, &float)?;
+        }
         let mask = metrics::mask_from_f32(&sample.mask);
         // The paper's MAE (all pixels, labels clamped), the masked MAE and the CD
         // (epssn_sim::metrics documents the exact formulas).
@@ -206,25 +220,20 @@ fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample) -> Result<Vec<
         .depth)
 }
 
-/// Writes every sample's float depth map to `<out>/<sample folder name>/depth_float.npy`.
-fn save_depth(weights_dir: &Path, set: &[Sample], out: &Path) -> Result<()> {
+/// Writes a sample's float depth map to `<out>/<sample folder name>/depth_float.npy`.
+fn save_depth(out: &Path, sample: &Sample, depth: &[f32]) -> Result<()> {
     use epssn::config::{DEPTH_COLUMNS, DEPTH_ROWS};
-    let folded = floatref::fold_all(&weights::load(weights_dir)?.float)?;
-    for sample in set {
-        let name = sample
-            .dir
-            .file_name()
-            .ok_or_else(|| anyhow!("{} has no folder name", sample.dir.display()))?;
-        let dir = out.join(name);
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let depth = float_depth(&folded, sample)?;
-        epssn_aris::npy::write_f32(
-            &dir.join("depth_float.npy"),
-            &[DEPTH_ROWS, DEPTH_COLUMNS],
-            &depth,
-        )?;
-    }
-    Ok(())
+    let name = sample
+        .dir
+        .file_name()
+        .ok_or_else(|| anyhow!("{} has no folder name", sample.dir.display()))?;
+    let dir = out.join(name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    epssn_aris::npy::write_f32(
+        &dir.join("depth_float.npy"),
+        &[DEPTH_ROWS, DEPTH_COLUMNS],
+        depth,
+    )
 }
 
 /// Mean of a list (NaN for none: JSON null, a table's NaN).
