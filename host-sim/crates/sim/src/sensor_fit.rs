@@ -31,6 +31,11 @@ pub const MAX_LOOKS: u32 = 8;
 pub const CROSSTALK2_RATIO: f64 = 0.25;
 /// Crosstalk values the search brackets the lag-1 correlation with.
 const CROSSTALK_GRID: [f64; 6] = [0.0, 0.04, 0.08, 0.12, 0.16, 0.2];
+/// Pulse widths the texture stage tries, as multiples of the base's `pulse_sigma_samples`: the
+/// range PSF that sets how far a return's rise and fall spread along range.
+const PULSE_GRID: [f64; 5] = [1.0, 0.7, 0.5, 0.35, 0.25];
+/// Far side-lobe levels the texture stage tries (`sidelobe`, share of the fan's mean).
+const SIDELOBE_GRID: [f64; 5] = [0.0, 0.01, 0.03, 0.1, 0.3];
 /// Dynamic range bounds, dB (`simulate` takes up to 200).
 const DR_RANGE: (f64, f64) = (10.0, 200.0);
 /// Noise floor looks bounds.
@@ -95,6 +100,10 @@ struct Candidate {
     ln_floor: f64,
     noise_looks: f64,
     crosstalk: f64,
+    /// The range PSF, samples (`pulse_sigma_samples`).
+    pulse_sigma: f64,
+    /// Far side lobes (`sidelobe`).
+    sidelobe: f64,
 }
 
 const LN10: f64 = std::f64::consts::LN_10;
@@ -113,6 +122,8 @@ impl Candidate {
                 p.speckle_looks.max(1) as f64
             },
             crosstalk: p.crosstalk.clamp(0.0, CROSSTALK_GRID[5]),
+            pulse_sigma: p.pulse_sigma_samples,
+            sidelobe: p.sidelobe,
         }
     }
 
@@ -140,6 +151,8 @@ impl Candidate {
             dynamic_range_db: dr,
             crosstalk: self.crosstalk,
             crosstalk2: self.crosstalk * CROSSTALK2_RATIO,
+            pulse_sigma_samples: self.pulse_sigma,
+            sidelobe: self.sidelobe,
             ..base.clone()
         }
     }
@@ -250,6 +263,17 @@ pub fn mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
     .sum()
 }
 
+/// [`mismatch`] plus the texture: the lag-1 correlations along range and across beams (scale
+/// 0.03), the bright contrast (0.01) and the histogram's mode count (each mode off weighs 5).
+pub fn texture_mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
+    let modes = sim.histogram_modes.abs_diff(target.histogram_modes) as f64;
+    mismatch(sim, target)
+        + ((sim.lag1_range - target.lag1_range) / 0.03).powi(2)
+        + ((sim.lag1_beam - target.lag1_beam) / 0.03).powi(2)
+        + ((sim.bright_contrast - target.bright_contrast) / 0.01).powi(2)
+        + 25.0 * modes * modes
+}
+
 /// The moment estimates of `target` (see [`MomentEstimates`]).
 pub fn moment_estimates(target: &ImageStats) -> MomentEstimates {
     // Skewness rises monotonically from −1.14 (one look) towards 0; bisect in ln L.
@@ -340,6 +364,42 @@ impl Search<'_> {
         best.context("no looks to try")
     }
 
+    /// The texture stage: for each pulse width of [`PULSE_GRID`] and the looks around `c`'s,
+    /// the moments matched again; then, at the best of those, each side-lobe level of
+    /// [`SIDELOBE_GRID`]; the candidate with the smallest [`texture_mismatch`] wins.
+    fn texture(&mut self, c: Candidate) -> Result<(Candidate, ImageStats)> {
+        let mut best: Option<(Candidate, ImageStats, f64)> = None;
+        let keep = |best: &mut Option<(Candidate, ImageStats, f64)>, r: (Candidate, ImageStats)| {
+            let m = texture_mismatch(&r.1, self.target);
+            if best.as_ref().is_none_or(|b| m < b.2) {
+                *best = Some((r.0, r.1, m));
+            }
+        };
+        let looks = c.looks.saturating_sub(1).max(1)..=(c.looks + 1).min(MAX_LOOKS);
+        for f in PULSE_GRID {
+            for l in looks.clone() {
+                let mut start = c;
+                start.pulse_sigma = self.bench.base.pulse_sigma_samples * f;
+                start.kappa *= (trigamma(c.looks as f64) / trigamma(l as f64)).sqrt();
+                start.looks = l;
+                let (cand, s, _) = self.match_moments(start.clamped(), 4)?;
+                keep(&mut best, (cand, s));
+            }
+        }
+        let pulse = best.as_ref().context("no pulse to try")?.0;
+        for x in SIDELOBE_GRID.into_iter().filter(|&x| x != pulse.sidelobe) {
+            let (cand, s, _) = self.match_moments(
+                Candidate {
+                    sidelobe: x,
+                    ..pulse
+                },
+                4,
+            )?;
+            keep(&mut best, (cand, s));
+        }
+        best.map(|(c, s, _)| (c, s)).context("no pulse to try")
+    }
+
     /// The crosstalk whose lag-1 correlation across beams meets the target's, interpolated on
     /// [`CROSSTALK_GRID`] (0 when even none correlates more than the target).
     fn crosstalk(&mut self, c: Candidate) -> Result<f64> {
@@ -379,7 +439,9 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
     let crosstalk = search.crosstalk(c)?;
     let c = Candidate { crosstalk, ..c };
     let around = c.looks.saturating_sub(1).max(1)..=(c.looks + 1).min(MAX_LOOKS);
-    let (c, fitted, mismatch) = search.best_looks(c, around, 4)?;
+    let (c, _, _) = search.best_looks(c, around, 4)?;
+    let (c, fitted) = search.texture(c)?;
+    let mismatch = mismatch(&fitted, target);
     Ok(Fit {
         params: c.apply(&bench.base),
         moment_estimates: est,
@@ -409,10 +471,36 @@ pub struct FitSensorOptions {
     pub json: bool,
 }
 
+/// One set's statistics in the `--json` report: every [`ImageStats`] field, and the texture
+/// figures also under the short names `lag1_beams` (= `lag1_beam`) and `modes`
+/// (= `histogram_modes`), so that `recording`, `base` and `fitted` each hold `lag1_range`,
+/// `lag1_beams`, `bright_contrast`, `dark_mean` and `modes`.
+#[derive(Serialize)]
+struct ReportStats<'a> {
+    #[serde(flatten)]
+    stats: &'a ImageStats,
+    lag1_beams: f64,
+    modes: usize,
+}
+
+impl<'a> From<&'a ImageStats> for ReportStats<'a> {
+    fn from(stats: &'a ImageStats) -> Self {
+        Self {
+            stats,
+            lag1_beams: stats.lag1_beam,
+            modes: stats.histogram_modes,
+        }
+    }
+}
+
 /// The `--json` report.
 #[derive(Serialize)]
 struct Report<'a> {
-    recording: &'a ImageStats,
+    recording: ReportStats<'a>,
+    /// The simulation with the base parameters (also under its older name).
+    base: ReportStats<'a>,
+    /// The simulation with the fitted parameters (also under its older name).
+    fitted: ReportStats<'a>,
     default_simulator: &'a ImageStats,
     fitted_simulator: &'a ImageStats,
     params: &'a SonarSimParams,
@@ -424,7 +512,7 @@ struct Report<'a> {
 /// The statistics table: one row per statistic, one column per set.
 pub fn write_table(out: &mut dyn Write, columns: &[(&str, &ImageStats)]) -> Result<()> {
     type Row = (&'static str, fn(&ImageStats) -> String);
-    let rows: [Row; 19] = [
+    let rows: [Row; 21] = [
         ("frames", |s| s.frames.to_string()),
         ("windows (dark / bright)", |s| {
             format!("{} ({}/{})", s.windows, s.dark_windows, s.bright_windows)
@@ -449,6 +537,12 @@ pub fn write_table(out: &mut dyn Write, columns: &[(&str, &ImageStats)]) -> Resu
         ("lag-1 across beams", |s| format!("{:.3}", s.lag1_beam)),
         ("lag-1 across beam means", |s| {
             format!("{:.3}", s.lag1_beam_columns)
+        }),
+        ("lag-1 along range, pooled", |s| {
+            format!("{:.3}", s.lag1_range_pooled)
+        }),
+        ("lag-1 across beams, pooled", |s| {
+            format!("{:.3}", s.lag1_beam_pooled)
         }),
     ];
     write!(out, "{:<26}", "statistic")?;
@@ -490,7 +584,9 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
         .with_context(|| format!("writing {}", args.out.display()))?;
     if args.json {
         let report = Report {
-            recording: &target,
+            recording: (&target).into(),
+            base: (&default_stats).into(),
+            fitted: (&fit.fitted).into(),
             default_simulator: &default_stats,
             fitted_simulator: &fit.fitted,
             params: &fit.params,
@@ -515,7 +611,7 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             out,
             "fitted: speckle_looks {} (moments {:.2}), noise_looks {:.2} (moments {:.2}), \
              noise_floor {:.3e} ({:.1} dB), gain_db {:.2}, dynamic_range_db {:.2} (moments {:.2}), \
-             crosstalk {:.3} / {:.3}",
+             crosstalk {:.3} / {:.3}, pulse_sigma_samples {:.2}",
             p.speckle_looks,
             e.speckle_looks,
             p.noise_looks,
@@ -526,7 +622,8 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             p.dynamic_range_db,
             e.dynamic_range_db,
             p.crosstalk,
-            p.crosstalk2
+            p.crosstalk2,
+            p.pulse_sigma_samples
         )?;
         writeln!(
             out,
