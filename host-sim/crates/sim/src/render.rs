@@ -95,6 +95,13 @@ pub struct SonarSimParams {
     /// field existed. Not with `ping_frames` (each ping's floor is one look there).
     #[serde(skip_serializing_if = "is_zero")]
     pub noise_looks: f64,
+    /// The floor's slope with range, dB per metre from `reference_range_m`: a receiver's
+    /// time-varied gain, which lifts the returns' spreading and absorption losses, lifts its
+    /// electronic noise with range as well, so relative to the returns the floor rises. Default
+    /// 0 (a floor level at every range, as the renderer always had); `host-sim fit-sensor` fits
+    /// it to the histogram's shape.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub noise_floor_db_per_m: f64,
     /// Gain added before compression, dB. Default 70.
     pub gain_db: f64,
     /// dB mapped onto 0..255 (0 dB after gain reads 0). Default 70.
@@ -123,6 +130,7 @@ impl Default for SonarSimParams {
             ping_frames: false,
             noise_floor: 1e-6,
             noise_looks: 0.0,
+            noise_floor_db_per_m: 0.0,
             gain_db: 70.0,
             dynamic_range_db: 70.0,
         }
@@ -375,6 +383,19 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
     let ns = profiles.first().map_or(0, |p| p.intensity.len());
     // The pulse is `params`' own (the fit's candidates form with other pulses than traced).
     let intensity = intensities(traced, params);
+    // The floor at each sample: level everywhere unless it has a slope with range.
+    let floor: Vec<f64> = if params.noise_floor_db_per_m != 0.0 {
+        let ranges = params.sample_ranges();
+        (0..ns)
+            .map(|s| {
+                let r = ranges.start + ranges.step * s as f64;
+                let db = params.noise_floor_db_per_m * (r - params.reference_range_m);
+                params.noise_floor * 10f64.powf(db / 10.0)
+            })
+            .collect()
+    } else {
+        vec![params.noise_floor; ns]
+    };
     // The fan's mean at each range, for the far side lobes (none by default).
     let fan_mean: Vec<f64> = if params.sidelobe > 0.0 {
         (0..ns)
@@ -432,7 +453,7 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
                     for ping in pings.iter_mut() {
                         let e1 = rng.sample::<f64, _>(Exp1);
                         let e2 = rng.sample::<f64, _>(Exp1);
-                        ping[s] = compress(v * e1 + params.noise_floor * e2);
+                        ping[s] = compress(v * e1 + floor[s] * e2);
                         sum += table.intensity(ping[s]);
                     }
                     *o = table.count(sum / looks as f32);
@@ -453,7 +474,7 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
                 } else {
                     (1.0, 1.0)
                 };
-                *o = compress(v * e1 + params.noise_floor * e2);
+                *o = compress(v * e1 + floor[s] * e2);
             }
             (out, pings)
         })

@@ -34,8 +34,13 @@ const CROSSTALK_GRID: [f64; 6] = [0.0, 0.04, 0.08, 0.12, 0.16, 0.2];
 /// Pulse widths the texture stage tries, as multiples of the base's `pulse_sigma_samples`: the
 /// range PSF that sets how far a return's rise and fall spread along range.
 const PULSE_GRID: [f64; 5] = [1.0, 0.7, 0.5, 0.35, 0.25];
-/// Far side-lobe levels the texture stage tries (`sidelobe`, share of the fan's mean).
-const SIDELOBE_GRID: [f64; 5] = [0.0, 0.01, 0.03, 0.1, 0.3];
+/// Far side-lobe levels the texture stage tries (`sidelobe`, share of the fan's mean: 1 lets
+/// each of the 128 beams leak into every other at −21 dB).
+const SIDELOBE_GRID: [f64; 5] = [0.0, 0.03, 0.1, 0.3, 1.0];
+/// The floor's slopes with range the texture stage tries, dB per metre.
+const FLOOR_SLOPE_GRID: [f64; 3] = [2.5, 5.0, 10.0];
+/// Floor looks the texture stage tries last, as multiples of the matched ones.
+const FLOOR_LOOKS_FACTORS: [f64; 3] = [1.5, 2.0, 3.0];
 /// Dynamic range bounds, dB (`simulate` takes up to 200).
 const DR_RANGE: (f64, f64) = (10.0, 200.0);
 /// Noise floor looks bounds.
@@ -104,6 +109,8 @@ struct Candidate {
     pulse_sigma: f64,
     /// Far side lobes (`sidelobe`).
     sidelobe: f64,
+    /// The floor's slope with range, dB/m (`noise_floor_db_per_m`).
+    floor_slope: f64,
 }
 
 const LN10: f64 = std::f64::consts::LN_10;
@@ -124,6 +131,7 @@ impl Candidate {
             crosstalk: p.crosstalk.clamp(0.0, CROSSTALK_GRID[5]),
             pulse_sigma: p.pulse_sigma_samples,
             sidelobe: p.sidelobe,
+            floor_slope: p.noise_floor_db_per_m,
         }
     }
 
@@ -153,6 +161,7 @@ impl Candidate {
             crosstalk2: self.crosstalk * CROSSTALK2_RATIO,
             pulse_sigma_samples: self.pulse_sigma,
             sidelobe: self.sidelobe,
+            noise_floor_db_per_m: self.floor_slope,
             ..base.clone()
         }
     }
@@ -264,10 +273,12 @@ pub fn mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
 }
 
 /// [`mismatch`] plus the texture: the lag-1 correlations along range and across beams (scale
-/// 0.03), the bright contrast (0.01) and the histogram's mode count (each mode off weighs 5).
+/// 0.03), the bright contrast (0.01), the share of samples clipped to 0 (0.001: a floor whose
+/// fades clip piles up a mode at 0) and the histogram's mode count (each mode off weighs 5).
 pub fn texture_mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
     let modes = sim.histogram_modes.abs_diff(target.histogram_modes) as f64;
     mismatch(sim, target)
+        + ((sim.zero_fraction - target.zero_fraction) / 0.001).powi(2)
         + ((sim.lag1_range - target.lag1_range) / 0.03).powi(2)
         + ((sim.lag1_beam - target.lag1_beam) / 0.03).powi(2)
         + ((sim.bright_contrast - target.bright_contrast) / 0.01).powi(2)
@@ -301,6 +312,8 @@ struct Search<'a> {
     bench: &'a Bench,
     target: &'a ImageStats,
     evaluations: usize,
+    /// Floor looks held while the moments are matched (the texture stage's smoother floors).
+    hold_noise_looks: bool,
 }
 
 impl Search<'_> {
@@ -336,7 +349,9 @@ impl Search<'_> {
             c.ln_floor += dark_ln_want - dark_ln_sim;
             // ψ'(N) is the floor's log variance: scale it by the spread's ratio.
             let ratio = (t.dark_std / c.kappa) / (s.dark_std.max(1e-3) / old.kappa);
-            c.noise_looks = inverse_trigamma(trigamma(old.noise_looks) * ratio * ratio);
+            if !self.hold_noise_looks {
+                c.noise_looks = inverse_trigamma(trigamma(old.noise_looks) * ratio * ratio);
+            }
             c = c.clamped();
         }
         let s = self.eval(&c)?;
@@ -366,7 +381,8 @@ impl Search<'_> {
 
     /// The texture stage: for each pulse width of [`PULSE_GRID`] and the looks around `c`'s,
     /// the moments matched again; then, at the best of those, each side-lobe level of
-    /// [`SIDELOBE_GRID`]; the candidate with the smallest [`texture_mismatch`] wins.
+    /// [`SIDELOBE_GRID`], and at the best of all, each floor slope of [`FLOOR_SLOPE_GRID`];
+    /// the candidate with the smallest [`texture_mismatch`] wins.
     fn texture(&mut self, c: Candidate) -> Result<(Candidate, ImageStats)> {
         let mut best: Option<(Candidate, ImageStats, f64)> = None;
         let keep = |best: &mut Option<(Candidate, ImageStats, f64)>, r: (Candidate, ImageStats)| {
@@ -375,7 +391,9 @@ impl Search<'_> {
                 *best = Some((r.0, r.1, m));
             }
         };
-        let looks = c.looks.saturating_sub(1).max(1)..=(c.looks + 1).min(MAX_LOOKS);
+        // Up to two looks more: the texture the scenes add to the bright windows' skewness
+        // makes the first stage pick fewer looks than the speckle has.
+        let looks = c.looks.saturating_sub(1).max(1)..=(c.looks + 2).min(MAX_LOOKS);
         for f in PULSE_GRID {
             for l in looks.clone() {
                 let mut start = c;
@@ -397,6 +415,30 @@ impl Search<'_> {
             )?;
             keep(&mut best, (cand, s));
         }
+        let lobes = best.as_ref().context("no side lobes to try")?.0;
+        for x in FLOOR_SLOPE_GRID {
+            let (cand, s, _) = self.match_moments(
+                Candidate {
+                    floor_slope: x,
+                    ..lobes
+                },
+                4,
+            )?;
+            keep(&mut best, (cand, s));
+        }
+        // A smoother floor than its spread asks for: fewer fades clipped to 0, whose pile is a
+        // histogram mode of its own.
+        let slope = best.as_ref().context("no floor slope to try")?.0;
+        self.hold_noise_looks = true;
+        for f in FLOOR_LOOKS_FACTORS {
+            let start = Candidate {
+                noise_looks: slope.noise_looks * f,
+                ..slope
+            };
+            let (cand, s, _) = self.match_moments(start.clamped(), 4)?;
+            keep(&mut best, (cand, s));
+        }
+        self.hold_noise_looks = false;
         best.map(|(c, s, _)| (c, s)).context("no pulse to try")
     }
 
@@ -429,6 +471,7 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
         bench,
         target,
         evaluations: 0,
+        hold_noise_looks: false,
     };
     let mut start = Candidate::from_params(&bench.base);
     start.looks = (est.speckle_looks.round() as u32).clamp(1, MAX_LOOKS);
