@@ -61,8 +61,7 @@ pub struct SonarSimParams {
     /// Far side lobes of the beam pattern: every beam also receives this fraction of the fan's
     /// mean intensity at the same range (before crosstalk), as a lens's side lobes let a strong
     /// return leak into every beam. Default 0 (none, as the renderer always did); `host-sim
-    /// fit-sensor` fits it to the histogram's shape (side lobes fill the valley between the floor
-    /// and the returns).
+    /// fit-sensor` fits it with the texture.
     #[serde(skip_serializing_if = "is_zero")]
     pub sidelobe: f64,
     /// Apply Rayleigh speckle (exponential intensity). Default true.
@@ -99,7 +98,7 @@ pub struct SonarSimParams {
     /// time-varied gain, which lifts the returns' spreading and absorption losses, lifts its
     /// electronic noise with range as well, so relative to the returns the floor rises. Default
     /// 0 (a floor level at every range, as the renderer always had); `host-sim fit-sensor` fits
-    /// it to the histogram's shape.
+    /// it with the texture.
     #[serde(skip_serializing_if = "is_zero")]
     pub noise_floor_db_per_m: f64,
     /// Gain added before compression, dB. Default 70.

@@ -1,5 +1,6 @@
 //! `host-sim fit-sensor`: fits the simulator's image formation (speckle looks, noise floor
-//! level and looks, gain, dynamic range, crosstalk) to a recording's image statistics
+//! level, looks and slope with range, gain, dynamic range, crosstalk, far side lobes, the
+//! pulse's extent along range) to a recording's image statistics
 //! ([`crate::sensor_stats`]), and writes the `SonarSimParams` that `simulate --params` reads.
 //!
 //! The estimator works in the compression's own terms: a sample reads
@@ -10,7 +11,9 @@
 //! `κ·√ψ'(N)`. The moment estimates from these relations start a deterministic search that
 //! simulates fixed scenes (traced once, re-formed per candidate) and matches the statistics:
 //! for each L, fixed-point updates of κ, o, floor and N through the same relations; then L by
-//! the skewness, the crosstalk by the lag-1 correlation across beams, and L once more.
+//! the skewness, the crosstalk by the lag-1 correlation across beams, and L once more; then
+//! the texture stage ([`texture_mismatch`]): the pulse with the looks around, the side lobes,
+//! the floor's slope and smoother floors, each with the moments matched again.
 //! Only image-formation fields change; the base's geometry and rays stay.
 
 use std::io::Write;
@@ -41,6 +44,9 @@ const SIDELOBE_GRID: [f64; 5] = [0.0, 0.03, 0.1, 0.3, 1.0];
 const FLOOR_SLOPE_GRID: [f64; 3] = [2.5, 5.0, 10.0];
 /// Floor looks the texture stage tries last, as multiples of the matched ones.
 const FLOOR_LOOKS_FACTORS: [f64; 3] = [1.5, 2.0, 3.0];
+/// What the texture stage must gain in [`texture_mismatch`] for its parameters to be taken:
+/// one histogram mode's worth.
+const TEXTURE_MARGIN: f64 = 25.0;
 /// Dynamic range bounds, dB (`simulate` takes up to 200).
 const DR_RANGE: (f64, f64) = (10.0, 200.0);
 /// Noise floor looks bounds.
@@ -482,8 +488,19 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
     let crosstalk = search.crosstalk(c)?;
     let c = Candidate { crosstalk, ..c };
     let around = c.looks.saturating_sub(1).max(1)..=(c.looks + 1).min(MAX_LOOKS);
-    let (c, _, _) = search.best_looks(c, around, 4)?;
-    let (c, fitted) = search.texture(c)?;
+    let (c, plain, _) = search.best_looks(c, around, 4)?;
+    let (textured, textured_stats) = search.texture(c)?;
+    // The texture stage's parameters only where they buy a clear match: on a recording whose
+    // texture the base's already has, the other scenes' differences would move them (and the
+    // gain and floor with them) for nothing.
+    let (c, fitted) = if texture_mismatch(&plain, target)
+        - texture_mismatch(&textured_stats, target)
+        >= TEXTURE_MARGIN
+    {
+        (textured, textured_stats)
+    } else {
+        (c, plain)
+    };
     let mismatch = mismatch(&fitted, target);
     Ok(Fit {
         params: c.apply(&bench.base),
@@ -654,7 +671,8 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             out,
             "fitted: speckle_looks {} (moments {:.2}), noise_looks {:.2} (moments {:.2}), \
              noise_floor {:.3e} ({:.1} dB), gain_db {:.2}, dynamic_range_db {:.2} (moments {:.2}), \
-             crosstalk {:.3} / {:.3}, pulse_sigma_samples {:.2}",
+             crosstalk {:.3} / {:.3}, pulse_sigma_samples {:.2}, sidelobe {:.2}, \
+             noise_floor_db_per_m {:.1}",
             p.speckle_looks,
             e.speckle_looks,
             p.noise_looks,
@@ -666,7 +684,9 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             e.dynamic_range_db,
             p.crosstalk,
             p.crosstalk2,
-            p.pulse_sigma_samples
+            p.pulse_sigma_samples,
+            p.sidelobe,
+            p.noise_floor_db_per_m
         )?;
         writeln!(
             out,

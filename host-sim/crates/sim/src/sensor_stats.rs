@@ -434,3 +434,80 @@ pub fn measure_recording(path: &std::path::Path) -> Result<ImageStats> {
         .collect();
     measure(&refs).with_context(|| format!("measuring {}", path.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    const BEAMS: usize = 64;
+    const SAMPLES: usize = 256;
+
+    /// A frame of independent noise (σ 10 counts) around a level that rises by `slope` counts per
+    /// sample along range (a scene's gradient, starting again every 64 samples, at a window's
+    /// edge), optionally averaged over two neighbours along range (a pulse spanning two samples).
+    fn frame(seed: u64, slope: f64, smooth: bool) -> Vec<u8> {
+        let mut rng = Rng::new(seed);
+        let noise: Vec<f64> = (0..SAMPLES * BEAMS).map(|_| rng.normal(10.0)).collect();
+        (0..SAMPLES * BEAMS)
+            .map(|i| {
+                let s = i / BEAMS;
+                let n = if smooth && s + 1 < SAMPLES {
+                    (noise[i] + noise[i + BEAMS]) / 2f64.sqrt()
+                } else {
+                    noise[i]
+                };
+                (60.0 + slope * (s % 64) as f64 + n).clamp(0.0, 255.0) as u8
+            })
+            .collect()
+    }
+
+    fn stats(slope: f64, smooth: bool) -> ImageStats {
+        let frames: Vec<Vec<u8>> = (0..2).map(|k| frame(k, slope, smooth)).collect();
+        let refs: Vec<FrameRef> = frames
+            .iter()
+            .map(|f| FrameRef {
+                data: f,
+                beams: BEAMS,
+            })
+            .collect();
+        measure_any(&refs).unwrap()
+    }
+
+    #[test]
+    fn the_lag1_statistics_read_the_texture_not_the_scenes_gradient() {
+        // Independent samples: a little below 0 (a window's plane removed from 64 samples, and
+        // the median of short-series correlations, both lean negative).
+        let flat = stats(0.0, false);
+        assert!(
+            (-0.12..0.0).contains(&flat.lag1_range),
+            "{}",
+            flat.lag1_range
+        );
+        assert!((-0.12..0.0).contains(&flat.lag1_beam), "{}", flat.lag1_beam);
+        // A gradient along range of 2 counts per sample (30 per window, three times the noise)
+        // leaves them there, while the pooled, mean-removed figure reads the gradient.
+        let ramp = stats(2.0, false);
+        assert!((ramp.lag1_range - flat.lag1_range).abs() < 0.03);
+        assert!((ramp.lag1_beam - flat.lag1_beam).abs() < 0.03);
+        assert!(ramp.lag1_range_pooled > flat.lag1_range_pooled + 0.2);
+        // Speckle correlated over two samples along range (ρ = 0.5) reads along range only.
+        let smooth = stats(0.0, true);
+        println!(
+            "independent {:.3} / {:.3}, gradient {:.3} / {:.3} (pooled {:.3}), two-sample {:.3} / {:.3}",
+            flat.lag1_range,
+            flat.lag1_beam,
+            ramp.lag1_range,
+            ramp.lag1_beam,
+            ramp.lag1_range_pooled,
+            smooth.lag1_range,
+            smooth.lag1_beam
+        );
+        assert!(smooth.lag1_range > 0.35, "{}", smooth.lag1_range);
+        assert!(
+            (-0.15..0.0).contains(&smooth.lag1_beam),
+            "{}",
+            smooth.lag1_beam
+        );
+    }
+}
