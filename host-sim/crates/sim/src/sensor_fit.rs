@@ -45,8 +45,9 @@ const FLOOR_SLOPE_GRID: [f64; 3] = [2.5, 5.0, 10.0];
 /// Floor looks the texture stage tries last, as multiples of the matched ones.
 const FLOOR_LOOKS_FACTORS: [f64; 3] = [1.5, 2.0, 3.0];
 /// What the texture stage must gain in [`texture_mismatch`] for its parameters to be taken:
-/// one histogram mode's worth.
-const TEXTURE_MARGIN: f64 = 25.0;
+/// two histogram modes' worth. Measured 2026-12-06: 181 on the ARIS 1200 recording, at most 25
+/// on the recovery test's simulated recordings (other scenes than the bench's, same texture).
+const TEXTURE_MARGIN: f64 = 50.0;
 /// Dynamic range bounds, dB (`simulate` takes up to 200).
 const DR_RANGE: (f64, f64) = (10.0, 200.0);
 /// Noise floor looks bounds.
