@@ -18,6 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Exp1, Gamma, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
 use crate::scene::{mix64, Scene};
 use crate::world::World;
@@ -57,6 +58,12 @@ pub struct SonarSimParams {
     pub crosstalk: f64,
     /// Fraction leaking into beams two apart. Default 0.02.
     pub crosstalk2: f64,
+    /// Far side lobes of the beam pattern: every beam also receives this fraction of the fan's
+    /// mean intensity at the same range (before crosstalk), as a lens's side lobes let a strong
+    /// return leak into every beam. Default 0 (none, as the renderer always did); `host-sim
+    /// fit-sensor` fits it with the texture.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub sidelobe: f64,
     /// Apply Rayleigh speckle (exponential intensity). Default true.
     pub speckle: bool,
     /// Independent speckle looks averaged in intensity before compression: L pings of a
@@ -87,6 +94,13 @@ pub struct SonarSimParams {
     /// field existed. Not with `ping_frames` (each ping's floor is one look there).
     #[serde(skip_serializing_if = "is_zero")]
     pub noise_looks: f64,
+    /// The floor's slope with range, dB per metre from `reference_range_m`: a receiver's
+    /// time-varied gain, which lifts the returns' spreading and absorption losses, lifts its
+    /// electronic noise with range as well, so relative to the returns the floor rises. Default
+    /// 0 (a floor level at every range, as the renderer always had); `host-sim fit-sensor` fits
+    /// it with the texture.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub noise_floor_db_per_m: f64,
     /// Gain added before compression, dB. Default 70.
     pub gain_db: f64,
     /// dB mapped onto 0..255 (0 dB after gain reads 0). Default 70.
@@ -109,11 +123,13 @@ impl Default for SonarSimParams {
             range_jitter_m: 0.0015,
             crosstalk: 0.08,
             crosstalk2: 0.02,
+            sidelobe: 0.0,
             speckle: true,
             speckle_looks: 1,
             ping_frames: false,
             noise_floor: 1e-6,
             noise_looks: 0.0,
+            noise_floor_db_per_m: 0.0,
             gain_db: 70.0,
             dynamic_range_db: 70.0,
         }
@@ -209,6 +225,33 @@ struct BeamProfile {
     intensity: Vec<f64>,
     weight: Vec<f64>,
     weighted_elevation: Vec<f64>,
+    /// Every ray's return, kept so that [`form_image`] can deposit them again with another
+    /// pulse than the tracing's (the sensor fit's candidates).
+    hits: Vec<RayHit>,
+}
+
+/// One ray's return: where it lands in range and what it weighs before the pulse.
+#[derive(Clone, Copy, Debug)]
+struct RayHit {
+    /// Range in samples (jittered), fractional.
+    sample: f64,
+    /// Linear weight (reflectivity, incidence, spreading, absorption, ray share).
+    weight: f64,
+}
+
+/// Adds `w` spread by a Gaussian pulse of `sigma` samples centred on sample `s` to `profile`:
+/// the one deposit rule of tracing and re-forming.
+fn deposit(profile: &mut [f64], s: f64, w: f64, sigma: f64) {
+    let ns = profile.len() as i64;
+    let reach = (3.0 * sigma).ceil() as i64;
+    let centre = s.round() as i64;
+    for i in (centre - reach)..=(centre + reach) {
+        if i < 0 || i >= ns {
+            continue;
+        }
+        let z = (i as f64 - s) / sigma;
+        profile[i as usize] += w * (-0.5 * z * z).exp();
+    }
 }
 
 /// Renders view `k` of `scene` (whose ray-casting form is `world`).
@@ -228,6 +271,8 @@ pub fn render_view(
 pub struct TracedView {
     profiles: Vec<BeamProfile>,
     view_seed: u64,
+    /// The pulse `profiles` were deposited with.
+    pulse_sigma_samples: f64,
 }
 
 /// Ray-casts view `k` of `scene` (whose ray-casting form is `world`): the expensive half of
@@ -250,7 +295,6 @@ pub fn trace_view(
     // Each beam's rays share unit weight, so brightness does not depend on the ray count.
     let ray_weight = 1.0 / (naz * nel) as f64;
     let sigma = params.pulse_sigma_samples.max(1e-3);
-    let reach = (3.0 * sigma).ceil() as i64;
     let view_seed = mix64(scene.sample_seed ^ mix64(view as u64 + 1));
 
     let profiles: Vec<BeamProfile> = (0..beams)
@@ -261,6 +305,7 @@ pub fn trace_view(
                 intensity: vec![0.0; ns],
                 weight: vec![0.0; ns],
                 weighted_elevation: vec![0.0; ns],
+                hits: Vec::with_capacity(naz * nel),
             };
             let hw = beam_half_width(&centres, b);
             for sa in 0..naz {
@@ -282,16 +327,11 @@ pub fn trace_view(
                         .powf(-params.absorption_db_per_m * (r - params.reference_range_m) / 10.0);
                     let w = ray_weight * hit.reflectivity * cos_inc * cos_inc * spread * absorb;
                     let s = (r - ranges.start) / ranges.step;
-                    let centre = s.round() as i64;
-                    for i in (centre - reach)..=(centre + reach) {
-                        if i < 0 || i >= ns as i64 {
-                            continue;
-                        }
-                        let z = (i as f64 - s) / sigma;
-                        let k = (-0.5 * z * z).exp();
-                        let i = i as usize;
-                        p.intensity[i] += w * k;
-                    }
+                    p.hits.push(RayHit {
+                        sample: s,
+                        weight: w,
+                    });
+                    deposit(&mut p.intensity, s, w, sigma);
                     // The elevation map bins the exact (jitter-free) range.
                     let se_exact = ((hit.t - ranges.start) / ranges.step).round();
                     if se_exact >= 0.0 && (se_exact as usize) < ns {
@@ -307,7 +347,29 @@ pub fn trace_view(
     TracedView {
         profiles,
         view_seed,
+        pulse_sigma_samples: params.pulse_sigma_samples,
     }
+}
+
+/// The beams' intensity profiles with `params`' pulse: the traced ones when it is the
+/// tracing's, else the rays deposited again (what the sensor fit's pulse candidates need).
+fn intensities<'a>(traced: &'a TracedView, params: &SonarSimParams) -> Vec<Cow<'a, [f64]>> {
+    let same = params.pulse_sigma_samples == traced.pulse_sigma_samples;
+    let sigma = params.pulse_sigma_samples.max(1e-3);
+    traced
+        .profiles
+        .par_iter()
+        .map(|p| {
+            if same {
+                return Cow::Borrowed(p.intensity.as_slice());
+            }
+            let mut v = vec![0.0; p.intensity.len()];
+            for h in &p.hits {
+                deposit(&mut v, h.sample, h.weight, sigma);
+            }
+            Cow::Owned(v)
+        })
+        .collect()
 }
 
 /// The image formation half of [`render_view`]: crosstalk, speckle, noise floor and log
@@ -318,6 +380,29 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
     let beams = profiles.len();
     // The traced length, not `params`: a caller forming with other geometry cannot index past it.
     let ns = profiles.first().map_or(0, |p| p.intensity.len());
+    // The pulse is `params`' own (the fit's candidates form with other pulses than traced).
+    let intensity = intensities(traced, params);
+    // The floor at each sample: level everywhere unless it has a slope with range.
+    let floor: Vec<f64> = if params.noise_floor_db_per_m != 0.0 {
+        let ranges = params.sample_ranges();
+        (0..ns)
+            .map(|s| {
+                let r = ranges.start + ranges.step * s as f64;
+                let db = params.noise_floor_db_per_m * (r - params.reference_range_m);
+                params.noise_floor * 10f64.powf(db / 10.0)
+            })
+            .collect()
+    } else {
+        vec![params.noise_floor; ns]
+    };
+    // The fan's mean at each range, for the far side lobes (none by default).
+    let fan_mean: Vec<f64> = if params.sidelobe > 0.0 {
+        (0..ns)
+            .map(|s| intensity.iter().map(|p| p[s]).sum::<f64>() / beams as f64)
+            .collect()
+    } else {
+        Vec::new()
+    };
     // Crosstalk, speckle, noise and log compression, beam by beam.
     let (c1, c2) = (params.crosstalk, params.crosstalk2);
     let looks = params.speckle_looks.max(1);
@@ -347,24 +432,27 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
         .into_par_iter()
         .map(|b| {
             let mut rng = ChaCha8Rng::seed_from_u64(mix64(view_seed ^ (((b as u64) << 1) | 1)));
-            let get = |j: i64| -> Option<&Vec<f64>> {
-                (j >= 0 && (j as usize) < beams).then(|| &profiles[j as usize].intensity)
+            let get = |j: i64| -> Option<&[f64]> {
+                (j >= 0 && (j as usize) < beams).then(|| &*intensity[j as usize])
             };
             let bi = b as i64;
             let mut out = vec![0u8; ns];
             let mut pings = vec![vec![0u8; ns]; recorded_pings];
             for (s, o) in out.iter_mut().enumerate() {
-                let mut v = (1.0 - 2.0 * c1 - 2.0 * c2) * profiles[b].intensity[s];
+                let mut v = (1.0 - 2.0 * c1 - 2.0 * c2) * intensity[b][s];
                 for (off, c) in [(1, c1), (2, c2)] {
                     v += c * get(bi - off).map_or(0.0, |p| p[s]);
                     v += c * get(bi + off).map_or(0.0, |p| p[s]);
+                }
+                if let Some(m) = fan_mean.get(s) {
+                    v += params.sidelobe * m;
                 }
                 if let Some(table) = &ping_table {
                     let mut sum = 0f32;
                     for ping in pings.iter_mut() {
                         let e1 = rng.sample::<f64, _>(Exp1);
                         let e2 = rng.sample::<f64, _>(Exp1);
-                        ping[s] = compress(v * e1 + params.noise_floor * e2);
+                        ping[s] = compress(v * e1 + floor[s] * e2);
                         sum += table.intensity(ping[s]);
                     }
                     *o = table.count(sum / looks as f32);
@@ -385,7 +473,7 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
                 } else {
                     (1.0, 1.0)
                 };
-                *o = compress(v * e1 + params.noise_floor * e2);
+                *o = compress(v * e1 + floor[s] * e2);
             }
             (out, pings)
         })

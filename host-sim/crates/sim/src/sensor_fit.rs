@@ -1,5 +1,6 @@
 //! `host-sim fit-sensor`: fits the simulator's image formation (speckle looks, noise floor
-//! level and looks, gain, dynamic range, crosstalk) to a recording's image statistics
+//! level, looks and slope with range, gain, dynamic range, crosstalk, far side lobes, the
+//! pulse's extent along range) to a recording's image statistics
 //! ([`crate::sensor_stats`]), and writes the `SonarSimParams` that `simulate --params` reads.
 //!
 //! The estimator works in the compression's own terms: a sample reads
@@ -10,7 +11,9 @@
 //! `κ·√ψ'(N)`. The moment estimates from these relations start a deterministic search that
 //! simulates fixed scenes (traced once, re-formed per candidate) and matches the statistics:
 //! for each L, fixed-point updates of κ, o, floor and N through the same relations; then L by
-//! the skewness, the crosstalk by the lag-1 correlation across beams, and L once more.
+//! the skewness, the crosstalk by the lag-1 correlation across beams, and L once more; then
+//! the texture stage ([`texture_mismatch`]): the pulse with the looks around, the side lobes,
+//! the floor's slope and smoother floors, each with the moments matched again.
 //! Only image-formation fields change; the base's geometry and rays stay.
 
 use std::io::Write;
@@ -31,6 +34,20 @@ pub const MAX_LOOKS: u32 = 8;
 pub const CROSSTALK2_RATIO: f64 = 0.25;
 /// Crosstalk values the search brackets the lag-1 correlation with.
 const CROSSTALK_GRID: [f64; 6] = [0.0, 0.04, 0.08, 0.12, 0.16, 0.2];
+/// Pulse widths the texture stage tries, as multiples of the base's `pulse_sigma_samples`: the
+/// range PSF that sets how far a return's rise and fall spread along range.
+const PULSE_GRID: [f64; 5] = [1.0, 0.7, 0.5, 0.35, 0.25];
+/// Far side-lobe levels the texture stage tries (`sidelobe`, share of the fan's mean: 1 lets
+/// each of the 128 beams leak into every other at −21 dB).
+const SIDELOBE_GRID: [f64; 5] = [0.0, 0.03, 0.1, 0.3, 1.0];
+/// The floor's slopes with range the texture stage tries, dB per metre.
+const FLOOR_SLOPE_GRID: [f64; 3] = [2.5, 5.0, 10.0];
+/// Floor looks the texture stage tries last, as multiples of the matched ones.
+const FLOOR_LOOKS_FACTORS: [f64; 3] = [1.5, 2.0, 3.0];
+/// What the texture stage must gain in [`texture_mismatch`] for its parameters to be taken:
+/// two histogram modes' worth. Measured 2026-12-06: 181 on the ARIS 1200 recording, at most 25
+/// on the recovery test's simulated recordings (other scenes than the bench's, same texture).
+const TEXTURE_MARGIN: f64 = 50.0;
 /// Dynamic range bounds, dB (`simulate` takes up to 200).
 const DR_RANGE: (f64, f64) = (10.0, 200.0);
 /// Noise floor looks bounds.
@@ -95,6 +112,12 @@ struct Candidate {
     ln_floor: f64,
     noise_looks: f64,
     crosstalk: f64,
+    /// The range PSF, samples (`pulse_sigma_samples`).
+    pulse_sigma: f64,
+    /// Far side lobes (`sidelobe`).
+    sidelobe: f64,
+    /// The floor's slope with range, dB/m (`noise_floor_db_per_m`).
+    floor_slope: f64,
 }
 
 const LN10: f64 = std::f64::consts::LN_10;
@@ -113,6 +136,9 @@ impl Candidate {
                 p.speckle_looks.max(1) as f64
             },
             crosstalk: p.crosstalk.clamp(0.0, CROSSTALK_GRID[5]),
+            pulse_sigma: p.pulse_sigma_samples,
+            sidelobe: p.sidelobe,
+            floor_slope: p.noise_floor_db_per_m,
         }
     }
 
@@ -140,6 +166,9 @@ impl Candidate {
             dynamic_range_db: dr,
             crosstalk: self.crosstalk,
             crosstalk2: self.crosstalk * CROSSTALK2_RATIO,
+            pulse_sigma_samples: self.pulse_sigma,
+            sidelobe: self.sidelobe,
+            noise_floor_db_per_m: self.floor_slope,
             ..base.clone()
         }
     }
@@ -250,6 +279,19 @@ pub fn mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
     .sum()
 }
 
+/// [`mismatch`] plus the texture: the lag-1 correlations along range and across beams (scale
+/// 0.03), the bright contrast (0.01), the share of samples clipped to 0 (0.001: a floor whose
+/// fades clip piles up a mode at 0) and the histogram's mode count (each mode off weighs 5).
+pub fn texture_mismatch(sim: &ImageStats, target: &ImageStats) -> f64 {
+    let modes = sim.histogram_modes.abs_diff(target.histogram_modes) as f64;
+    mismatch(sim, target)
+        + ((sim.zero_fraction - target.zero_fraction) / 0.001).powi(2)
+        + ((sim.lag1_range - target.lag1_range) / 0.03).powi(2)
+        + ((sim.lag1_beam - target.lag1_beam) / 0.03).powi(2)
+        + ((sim.bright_contrast - target.bright_contrast) / 0.01).powi(2)
+        + 25.0 * modes * modes
+}
+
 /// The moment estimates of `target` (see [`MomentEstimates`]).
 pub fn moment_estimates(target: &ImageStats) -> MomentEstimates {
     // Skewness rises monotonically from −1.14 (one look) towards 0; bisect in ln L.
@@ -277,6 +319,8 @@ struct Search<'a> {
     bench: &'a Bench,
     target: &'a ImageStats,
     evaluations: usize,
+    /// Floor looks held while the moments are matched (the texture stage's smoother floors).
+    hold_noise_looks: bool,
 }
 
 impl Search<'_> {
@@ -312,7 +356,9 @@ impl Search<'_> {
             c.ln_floor += dark_ln_want - dark_ln_sim;
             // ψ'(N) is the floor's log variance: scale it by the spread's ratio.
             let ratio = (t.dark_std / c.kappa) / (s.dark_std.max(1e-3) / old.kappa);
-            c.noise_looks = inverse_trigamma(trigamma(old.noise_looks) * ratio * ratio);
+            if !self.hold_noise_looks {
+                c.noise_looks = inverse_trigamma(trigamma(old.noise_looks) * ratio * ratio);
+            }
             c = c.clamped();
         }
         let s = self.eval(&c)?;
@@ -338,6 +384,69 @@ impl Search<'_> {
             }
         }
         best.context("no looks to try")
+    }
+
+    /// The texture stage: for each pulse width of [`PULSE_GRID`] and the looks around `c`'s,
+    /// the moments matched again; then, at the best of those, each side-lobe level of
+    /// [`SIDELOBE_GRID`], and at the best of all, each floor slope of [`FLOOR_SLOPE_GRID`];
+    /// the candidate with the smallest [`texture_mismatch`] wins.
+    fn texture(&mut self, c: Candidate) -> Result<(Candidate, ImageStats)> {
+        let mut best: Option<(Candidate, ImageStats, f64)> = None;
+        let keep = |best: &mut Option<(Candidate, ImageStats, f64)>, r: (Candidate, ImageStats)| {
+            let m = texture_mismatch(&r.1, self.target);
+            if best.as_ref().is_none_or(|b| m < b.2) {
+                *best = Some((r.0, r.1, m));
+            }
+        };
+        // Up to two looks more: the texture the scenes add to the bright windows' skewness
+        // makes the first stage pick fewer looks than the speckle has.
+        let looks = c.looks.saturating_sub(1).max(1)..=(c.looks + 2).min(MAX_LOOKS);
+        for f in PULSE_GRID {
+            for l in looks.clone() {
+                let mut start = c;
+                start.pulse_sigma = self.bench.base.pulse_sigma_samples * f;
+                start.kappa *= (trigamma(c.looks as f64) / trigamma(l as f64)).sqrt();
+                start.looks = l;
+                let (cand, s, _) = self.match_moments(start.clamped(), 4)?;
+                keep(&mut best, (cand, s));
+            }
+        }
+        let pulse = best.as_ref().context("no pulse to try")?.0;
+        for x in SIDELOBE_GRID.into_iter().filter(|&x| x != pulse.sidelobe) {
+            let (cand, s, _) = self.match_moments(
+                Candidate {
+                    sidelobe: x,
+                    ..pulse
+                },
+                4,
+            )?;
+            keep(&mut best, (cand, s));
+        }
+        let lobes = best.as_ref().context("no side lobes to try")?.0;
+        for x in FLOOR_SLOPE_GRID {
+            let (cand, s, _) = self.match_moments(
+                Candidate {
+                    floor_slope: x,
+                    ..lobes
+                },
+                4,
+            )?;
+            keep(&mut best, (cand, s));
+        }
+        // A smoother floor than its spread asks for: fewer fades clipped to 0, whose pile is a
+        // histogram mode of its own.
+        let slope = best.as_ref().context("no floor slope to try")?.0;
+        self.hold_noise_looks = true;
+        for f in FLOOR_LOOKS_FACTORS {
+            let start = Candidate {
+                noise_looks: slope.noise_looks * f,
+                ..slope
+            };
+            let (cand, s, _) = self.match_moments(start.clamped(), 4)?;
+            keep(&mut best, (cand, s));
+        }
+        self.hold_noise_looks = false;
+        best.map(|(c, s, _)| (c, s)).context("no pulse to try")
     }
 
     /// The crosstalk whose lag-1 correlation across beams meets the target's, interpolated on
@@ -369,6 +478,7 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
         bench,
         target,
         evaluations: 0,
+        hold_noise_looks: false,
     };
     let mut start = Candidate::from_params(&bench.base);
     start.looks = (est.speckle_looks.round() as u32).clamp(1, MAX_LOOKS);
@@ -379,7 +489,20 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
     let crosstalk = search.crosstalk(c)?;
     let c = Candidate { crosstalk, ..c };
     let around = c.looks.saturating_sub(1).max(1)..=(c.looks + 1).min(MAX_LOOKS);
-    let (c, fitted, mismatch) = search.best_looks(c, around, 4)?;
+    let (c, plain, _) = search.best_looks(c, around, 4)?;
+    let (textured, textured_stats) = search.texture(c)?;
+    // The texture stage's parameters only where they buy a clear match: on a recording whose
+    // texture the base's already has, the other scenes' differences would move them (and the
+    // gain and floor with them) for nothing.
+    let (c, fitted) = if texture_mismatch(&plain, target)
+        - texture_mismatch(&textured_stats, target)
+        >= TEXTURE_MARGIN
+    {
+        (textured, textured_stats)
+    } else {
+        (c, plain)
+    };
+    let mismatch = mismatch(&fitted, target);
     Ok(Fit {
         params: c.apply(&bench.base),
         moment_estimates: est,
@@ -409,10 +532,36 @@ pub struct FitSensorOptions {
     pub json: bool,
 }
 
+/// One set's statistics in the `--json` report: every [`ImageStats`] field, and the texture
+/// figures also under the short names `lag1_beams` (= `lag1_beam`) and `modes`
+/// (= `histogram_modes`), so that `recording`, `base` and `fitted` each hold `lag1_range`,
+/// `lag1_beams`, `bright_contrast`, `dark_mean` and `modes`.
+#[derive(Serialize)]
+struct ReportStats<'a> {
+    #[serde(flatten)]
+    stats: &'a ImageStats,
+    lag1_beams: f64,
+    modes: usize,
+}
+
+impl<'a> From<&'a ImageStats> for ReportStats<'a> {
+    fn from(stats: &'a ImageStats) -> Self {
+        Self {
+            stats,
+            lag1_beams: stats.lag1_beam,
+            modes: stats.histogram_modes,
+        }
+    }
+}
+
 /// The `--json` report.
 #[derive(Serialize)]
 struct Report<'a> {
-    recording: &'a ImageStats,
+    recording: ReportStats<'a>,
+    /// The simulation with the base parameters (also under its older name).
+    base: ReportStats<'a>,
+    /// The simulation with the fitted parameters (also under its older name).
+    fitted: ReportStats<'a>,
     default_simulator: &'a ImageStats,
     fitted_simulator: &'a ImageStats,
     params: &'a SonarSimParams,
@@ -424,7 +573,7 @@ struct Report<'a> {
 /// The statistics table: one row per statistic, one column per set.
 pub fn write_table(out: &mut dyn Write, columns: &[(&str, &ImageStats)]) -> Result<()> {
     type Row = (&'static str, fn(&ImageStats) -> String);
-    let rows: [Row; 19] = [
+    let rows: [Row; 21] = [
         ("frames", |s| s.frames.to_string()),
         ("windows (dark / bright)", |s| {
             format!("{} ({}/{})", s.windows, s.dark_windows, s.bright_windows)
@@ -449,6 +598,12 @@ pub fn write_table(out: &mut dyn Write, columns: &[(&str, &ImageStats)]) -> Resu
         ("lag-1 across beams", |s| format!("{:.3}", s.lag1_beam)),
         ("lag-1 across beam means", |s| {
             format!("{:.3}", s.lag1_beam_columns)
+        }),
+        ("lag-1 along range, pooled", |s| {
+            format!("{:.3}", s.lag1_range_pooled)
+        }),
+        ("lag-1 across beams, pooled", |s| {
+            format!("{:.3}", s.lag1_beam_pooled)
         }),
     ];
     write!(out, "{:<26}", "statistic")?;
@@ -490,7 +645,9 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
         .with_context(|| format!("writing {}", args.out.display()))?;
     if args.json {
         let report = Report {
-            recording: &target,
+            recording: (&target).into(),
+            base: (&default_stats).into(),
+            fitted: (&fit.fitted).into(),
             default_simulator: &default_stats,
             fitted_simulator: &fit.fitted,
             params: &fit.params,
@@ -515,7 +672,8 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             out,
             "fitted: speckle_looks {} (moments {:.2}), noise_looks {:.2} (moments {:.2}), \
              noise_floor {:.3e} ({:.1} dB), gain_db {:.2}, dynamic_range_db {:.2} (moments {:.2}), \
-             crosstalk {:.3} / {:.3}",
+             crosstalk {:.3} / {:.3}, pulse_sigma_samples {:.2}, sidelobe {:.2}, \
+             noise_floor_db_per_m {:.1}",
             p.speckle_looks,
             e.speckle_looks,
             p.noise_looks,
@@ -526,7 +684,10 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
             p.dynamic_range_db,
             e.dynamic_range_db,
             p.crosstalk,
-            p.crosstalk2
+            p.crosstalk2,
+            p.pulse_sigma_samples,
+            p.sidelobe,
+            p.noise_floor_db_per_m
         )?;
         writeln!(
             out,

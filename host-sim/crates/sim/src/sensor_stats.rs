@@ -75,10 +75,22 @@ pub struct ImageStats {
     /// Modes of the histogram of all samples (smoothed over 9 counts; a peak counts when it
     /// stands 10 % above the valley to its higher neighbour and holds 1 % of the highest).
     pub histogram_modes: usize,
-    /// Bright windows: lag-1 correlation along range (window mean removed, pooled).
+    /// Bright windows: lag-1 correlation along range, the texture's: per window, after the
+    /// window's least-squares plane (its mean and its gradients along range and across beams,
+    /// the scene's smooth variation) is removed; median over the bright windows. Independent
+    /// samples read about −0.03 (the plane's removal), speckle correlated over the pulse more.
     pub lag1_range: f64,
-    /// Bright windows: lag-1 correlation across adjacent beams (window mean removed, pooled).
+    /// Bright windows: lag-1 correlation across adjacent beams, as [`Self::lag1_range`].
     pub lag1_beam: f64,
+    /// Bright windows: lag-1 correlation along range with only the window mean removed, pooled
+    /// over the windows (the definition before 2026-12-06): windows straddling a return's edge
+    /// have the largest variance and set it, so it reads the scene's edges more than the
+    /// sensor's texture.
+    #[serde(default)]
+    pub lag1_range_pooled: f64,
+    /// Bright windows: the same across adjacent beams, pooled.
+    #[serde(default)]
+    pub lag1_beam_pooled: f64,
     /// Bright windows: lag-1 correlation across beams of the 16-sample column means (speckle
     /// averaged out: the beam pattern, which crosstalk widens).
     pub lag1_beam_columns: f64,
@@ -96,6 +108,62 @@ struct Window {
     range_pairs: [f64; 3],
     beam_pairs: [f64; 3],
     column_pairs: [f64; 3],
+    /// Lag-1 correlations along range and across beams with the window's plane removed.
+    lag1_range: f64,
+    lag1_beam: f64,
+}
+
+/// Σ d·e, Σ d², Σ e² over the lag-1 neighbours along range and across beams of `d(s, b)`.
+fn lag1_pairs(d: impl Fn(usize, usize) -> f64) -> ([f64; 3], [f64; 3]) {
+    let mut range_pairs = [0.0; 3];
+    let mut beam_pairs = [0.0; 3];
+    let add = |p: &mut [f64; 3], x: f64, y: f64| {
+        p[0] += x * y;
+        p[1] += x * x;
+        p[2] += y * y;
+    };
+    for s in 0..WINDOW_SAMPLES {
+        for b in 0..WINDOW_BEAMS {
+            if s + 1 < WINDOW_SAMPLES {
+                add(&mut range_pairs, d(s, b), d(s + 1, b));
+            }
+            if b + 1 < WINDOW_BEAMS {
+                add(&mut beam_pairs, d(s, b), d(s, b + 1));
+            }
+        }
+    }
+    (range_pairs, beam_pairs)
+}
+
+/// The correlation of summed pairs (0 when either side is flat).
+fn correlation(p: &[f64; 3]) -> f64 {
+    let den = (p[1] * p[2]).sqrt();
+    if den > 0.0 {
+        p[0] / den
+    } else {
+        0.0
+    }
+}
+
+/// The window's lag-1 correlations along range and across beams after its least-squares plane
+/// `mean + gs·(s − s̄) + gb·(b − b̄)` is removed (centred coordinates: the slopes are independent
+/// regressions).
+fn detrended_lag1(at: impl Fn(usize, usize) -> f64, mean: f64) -> (f64, f64) {
+    let sc = (WINDOW_SAMPLES as f64 - 1.0) / 2.0;
+    let bc = (WINDOW_BEAMS as f64 - 1.0) / 2.0;
+    let (mut gs, mut ss, mut gb, mut sb) = (0.0, 0.0, 0.0, 0.0);
+    for s in 0..WINDOW_SAMPLES {
+        for b in 0..WINDOW_BEAMS {
+            let (u, v, d) = (s as f64 - sc, b as f64 - bc, at(s, b) - mean);
+            gs += u * d;
+            ss += u * u;
+            gb += v * d;
+            sb += v * v;
+        }
+    }
+    let (gs, gb) = (gs / ss, gb / sb);
+    let (r, b) = lag1_pairs(|s, b| at(s, b) - mean - gs * (s as f64 - sc) - gb * (b as f64 - bc));
+    (correlation(&r), correlation(&b))
 }
 
 fn window(frame: &FrameRef, s0: usize, b0: usize) -> Window {
@@ -111,27 +179,15 @@ fn window(frame: &FrameRef, s0: usize, b0: usize) -> Window {
     }
     let mean = sum / n;
     let (mut m2, mut m3) = (0.0, 0.0);
-    let mut range_pairs = [0.0; 3];
-    let mut beam_pairs = [0.0; 3];
     for s in 0..WINDOW_SAMPLES {
         for b in 0..WINDOW_BEAMS {
             let d = at(s, b) - mean;
             m2 += d * d;
             m3 += d * d * d;
-            if s + 1 < WINDOW_SAMPLES {
-                let e = at(s + 1, b) - mean;
-                range_pairs[0] += d * e;
-                range_pairs[1] += d * d;
-                range_pairs[2] += e * e;
-            }
-            if b + 1 < WINDOW_BEAMS {
-                let e = at(s, b + 1) - mean;
-                beam_pairs[0] += d * e;
-                beam_pairs[1] += d * d;
-                beam_pairs[2] += e * e;
-            }
         }
     }
+    let (range_pairs, beam_pairs) = lag1_pairs(|s, b| at(s, b) - mean);
+    let (lag1_range, lag1_beam) = detrended_lag1(at, mean);
     let (m2, m3) = (m2 / n, m3 / n);
     // Second-difference residuals along range, r = x(s) − (x(s−1) + x(s+1)) / 2: the scene's
     // smooth variation cancels, white speckle keeps 1.5× its variance and 0.75× its third
@@ -171,6 +227,8 @@ fn window(frame: &FrameRef, s0: usize, b0: usize) -> Window {
         range_pairs,
         beam_pairs,
         column_pairs,
+        lag1_range,
+        lag1_beam,
     }
 }
 
@@ -194,12 +252,7 @@ fn pooled_correlation<'a>(pairs: impl Iterator<Item = &'a [f64; 3]>) -> f64 {
             *t += p;
         }
     }
-    let den = (t[1] * t[2]).sqrt();
-    if den > 0.0 {
-        t[0] / den
-    } else {
-        0.0
-    }
+    correlation(&t)
 }
 
 /// Percentile `q` (0..=1) of a histogram of `total` samples: the lowest count reaching it.
@@ -325,8 +378,10 @@ pub fn measure_any(frames: &[FrameRef]) -> Result<ImageStats> {
         p50: percentile(&hist, total, 0.5),
         p99: percentile(&hist, total, 0.99),
         histogram_modes: histogram_modes(&hist),
-        lag1_range: pooled_correlation(bright.iter().map(|w| &w.range_pairs)),
-        lag1_beam: pooled_correlation(bright.iter().map(|w| &w.beam_pairs)),
+        lag1_range: med(bright, |w| w.lag1_range),
+        lag1_beam: med(bright, |w| w.lag1_beam),
+        lag1_range_pooled: pooled_correlation(bright.iter().map(|w| &w.range_pairs)),
+        lag1_beam_pooled: pooled_correlation(bright.iter().map(|w| &w.beam_pairs)),
         lag1_beam_columns: pooled_correlation(bright.iter().map(|w| &w.column_pairs)),
     })
 }
@@ -378,4 +433,81 @@ pub fn measure_recording(path: &std::path::Path) -> Result<ImageStats> {
         })
         .collect();
     measure(&refs).with_context(|| format!("measuring {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    const BEAMS: usize = 64;
+    const SAMPLES: usize = 256;
+
+    /// A frame of independent noise (σ 10 counts) around a level that rises by `slope` counts per
+    /// sample along range (a scene's gradient, starting again every 64 samples, at a window's
+    /// edge), optionally averaged over two neighbours along range (a pulse spanning two samples).
+    fn frame(seed: u64, slope: f64, smooth: bool) -> Vec<u8> {
+        let mut rng = Rng::new(seed);
+        let noise: Vec<f64> = (0..SAMPLES * BEAMS).map(|_| rng.normal(10.0)).collect();
+        (0..SAMPLES * BEAMS)
+            .map(|i| {
+                let s = i / BEAMS;
+                let n = if smooth && s + 1 < SAMPLES {
+                    (noise[i] + noise[i + BEAMS]) / 2f64.sqrt()
+                } else {
+                    noise[i]
+                };
+                (60.0 + slope * (s % 64) as f64 + n).clamp(0.0, 255.0) as u8
+            })
+            .collect()
+    }
+
+    fn stats(slope: f64, smooth: bool) -> ImageStats {
+        let frames: Vec<Vec<u8>> = (0..2).map(|k| frame(k, slope, smooth)).collect();
+        let refs: Vec<FrameRef> = frames
+            .iter()
+            .map(|f| FrameRef {
+                data: f,
+                beams: BEAMS,
+            })
+            .collect();
+        measure_any(&refs).unwrap()
+    }
+
+    #[test]
+    fn the_lag1_statistics_read_the_texture_not_the_scenes_gradient() {
+        // Independent samples: a little below 0 (a window's plane removed from 64 samples, and
+        // the median of short-series correlations, both lean negative).
+        let flat = stats(0.0, false);
+        assert!(
+            (-0.12..0.0).contains(&flat.lag1_range),
+            "{}",
+            flat.lag1_range
+        );
+        assert!((-0.12..0.0).contains(&flat.lag1_beam), "{}", flat.lag1_beam);
+        // A gradient along range of 2 counts per sample (30 per window, three times the noise)
+        // leaves them there, while the pooled, mean-removed figure reads the gradient.
+        let ramp = stats(2.0, false);
+        assert!((ramp.lag1_range - flat.lag1_range).abs() < 0.03);
+        assert!((ramp.lag1_beam - flat.lag1_beam).abs() < 0.03);
+        assert!(ramp.lag1_range_pooled > flat.lag1_range_pooled + 0.2);
+        // Speckle correlated over two samples along range (ρ = 0.5) reads along range only.
+        let smooth = stats(0.0, true);
+        println!(
+            "independent {:.3} / {:.3}, gradient {:.3} / {:.3} (pooled {:.3}), two-sample {:.3} / {:.3}",
+            flat.lag1_range,
+            flat.lag1_beam,
+            ramp.lag1_range,
+            ramp.lag1_beam,
+            ramp.lag1_range_pooled,
+            smooth.lag1_range,
+            smooth.lag1_beam
+        );
+        assert!(smooth.lag1_range > 0.35, "{}", smooth.lag1_range);
+        assert!(
+            (-0.15..0.0).contains(&smooth.lag1_beam),
+            "{}",
+            smooth.lag1_beam
+        );
+    }
 }

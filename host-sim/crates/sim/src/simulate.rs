@@ -328,6 +328,18 @@ pub fn check_params(params: &SonarSimParams) -> Result<()> {
         "sim params: noise_looks must be within 0..=1e6 (0: the floor shares speckle_looks)"
     );
     ensure!(
+        params.pulse_sigma_samples.is_finite() && params.pulse_sigma_samples > 0.0,
+        "sim params: pulse_sigma_samples must be positive"
+    );
+    ensure!(
+        params.sidelobe.is_finite() && (0.0..=10.0).contains(&params.sidelobe),
+        "sim params: sidelobe must be within 0..=10"
+    );
+    ensure!(
+        params.noise_floor_db_per_m.is_finite() && params.noise_floor_db_per_m.abs() <= 100.0,
+        "sim params: noise_floor_db_per_m must be within -100..=100"
+    );
+    ensure!(
         params.noise_looks == 0.0 || !params.ping_frames,
         "sim params: noise_looks cannot be combined with ping_frames"
     );

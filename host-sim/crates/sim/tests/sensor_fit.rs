@@ -194,3 +194,119 @@ fn bad_recordings_are_errors_not_panics() {
     let e = fit_file(&recording_of(&vec![100u8; 520 * 128], 2));
     assert!(e.contains("no bright windows"), "{e}");
 }
+
+/// The texture parameters' statistics on a small bench (2 artificial scenes, seed 3).
+fn texture_stats(bench: &Bench, p: &SonarSimParams) -> epssn_sim::sensor_stats::ImageStats {
+    bench.stats(p).unwrap()
+}
+
+#[test]
+fn each_texture_parameter_moves_its_statistic() {
+    let base = SonarSimParams::default();
+    let bench = Bench::new(SceneKind::Artificial, 2, 3, &base).unwrap();
+    let at = texture_stats(&bench, &base);
+    // A shorter pulse (range PSF) decorrelates the returns' rise and fall along range; without
+    // speckle that is all the texture there is.
+    let quiet = SonarSimParams {
+        speckle: false,
+        ..base.clone()
+    };
+    let long = texture_stats(&bench, &quiet);
+    let short = texture_stats(
+        &bench,
+        &SonarSimParams {
+            pulse_sigma_samples: 0.35,
+            ..quiet.clone()
+        },
+    );
+    assert!(
+        short.lag1_range < long.lag1_range - 0.1,
+        "pulse 0.35: {} against 1.0: {}",
+        short.lag1_range,
+        long.lag1_range
+    );
+    // Far side lobes leak the returns into every beam: the floor rises.
+    let lobes = texture_stats(
+        &bench,
+        &SonarSimParams {
+            sidelobe: 1.0,
+            ..base.clone()
+        },
+    );
+    assert!(
+        lobes.dark_mean > at.dark_mean + 3.0,
+        "{} {}",
+        lobes.dark_mean,
+        at.dark_mean
+    );
+    // A floor rising with range (all of the window lies beyond the 2 m reference) rises.
+    let tvg = texture_stats(
+        &bench,
+        &SonarSimParams {
+            noise_floor_db_per_m: 10.0,
+            ..base.clone()
+        },
+    );
+    assert!(
+        tvg.dark_mean > at.dark_mean + 3.0,
+        "{} {}",
+        tvg.dark_mean,
+        at.dark_mean
+    );
+    // A floor of many looks has fewer fades clipped to 0.
+    let smooth = texture_stats(
+        &bench,
+        &SonarSimParams {
+            noise_looks: 8.0,
+            ..base.clone()
+        },
+    );
+    assert!(smooth.zero_fraction < at.zero_fraction / 2.0);
+}
+
+#[test]
+fn forming_with_the_traced_pulse_is_the_tracing_and_the_defaults_serialise_as_before() {
+    // A bench traced with another pulse and formed with the default one gives the default
+    // bench's frames bit for bit: the rays are deposited again by the same rule.
+    let base = SonarSimParams::default();
+    let traced_default = Bench::new(SceneKind::Artificial, 1, 4, &base).unwrap();
+    let other = SonarSimParams {
+        pulse_sigma_samples: 0.5,
+        ..base.clone()
+    };
+    let traced_other = Bench::new(SceneKind::Artificial, 1, 4, &other).unwrap();
+    assert_eq!(traced_other.frames(&base), traced_default.frames(&base));
+    assert_ne!(traced_other.frames(&other), traced_default.frames(&base));
+    // The new fields stay out of a default sim_params.json.
+    let json = serde_json::to_string(&base).unwrap();
+    for key in ["sidelobe", "noise_floor_db_per_m"] {
+        assert!(!json.contains(key), "{json}");
+    }
+}
+
+#[test]
+// One fit of the bundled ARIS 1200 recording: about a minute in the dev profile.
+fn the_fit_matches_the_aris1200_recordings_texture() {
+    let rec = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../data/aris1200-telephoto-6frames.aris");
+    let target = measure_recording(&rec).unwrap();
+    let bench = Bench::new(SceneKind::Artificial, SCENES, 0, &SonarSimParams::default()).unwrap();
+    let f = fit(&target, &bench).unwrap().fitted;
+    println!(
+        "lag1 range {:.3} / {:.3}, beams {:.3} / {:.3}, contrast {:.3} / {:.3}, modes {} / {}",
+        f.lag1_range,
+        target.lag1_range,
+        f.lag1_beam,
+        target.lag1_beam,
+        f.bright_contrast,
+        target.bright_contrast,
+        f.histogram_modes,
+        target.histogram_modes
+    );
+    assert!((f.lag1_range - target.lag1_range).abs() <= 0.1);
+    assert!((f.lag1_beam - target.lag1_beam).abs() <= 0.1);
+    assert!((f.bright_contrast - target.bright_contrast).abs() <= 0.02);
+    assert_eq!(f.histogram_modes, 1);
+    assert_eq!(target.histogram_modes, 1);
+    assert!((f.dark_mean - target.dark_mean).abs() < 1.0);
+}
