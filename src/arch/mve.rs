@@ -1489,6 +1489,113 @@ fn fill_bytes_fits(
         && cs <= i32::MAX as usize / 2
 }
 
+/// Most entries of one [`gather_bytes`] call.
+pub const GATHER_ENTRIES: usize = 64;
+
+/// The head's int8 column gather with Helium (`kernels::head_s8`'s int8 line): for each
+/// entry `k < at.len()`, `dst[k + y·dstride] = input[at[k] + y·sstride]` for `y < rows`, or
+/// `pad` where `at[k]` is `usize::MAX` (a plane or column outside the input). Eight rows per
+/// pass: a byte gather widened to 16-bit lanes (`VLDRB.U16` with 16-bit byte offsets) and a
+/// byte scatter store (`VSTRB.16`): 5 instructions per eight rows of an entry, about 6 per
+/// entry around them, every entry in one call (the i16 gather's `pack_strided` took 10 per
+/// four words of two channels and a call per word column). Tail-predicated (`DLSTP.16`), so
+/// any `rows` from 1 on. Returns false, writing nothing, for no rows, more than
+/// [`GATHER_ENTRIES`] entries, seven strides past 16-bit offsets, or a row or `dst` too short.
+pub fn gather_bytes(
+    dst: &mut [u8],
+    (dstride, rows): (usize, usize),
+    (input, at): (&[i8], &[usize]),
+    sstride: usize,
+    pad: i8,
+) -> bool {
+    let Some(last) = rows.checked_sub(1) else {
+        return false;
+    };
+    let fits = at.len() <= GATHER_ENTRIES
+        && !at.is_empty()
+        && sstride
+            .checked_mul(7)
+            .is_some_and(|s| s <= u16::MAX as usize)
+        && dstride
+            .checked_mul(7)
+            .is_some_and(|s| s <= u16::MAX as usize)
+        && last
+            .checked_mul(sstride)
+            .and_then(|s| s.checked_add(1))
+            .is_some_and(|span| rows_within(input.len(), at, (1, 0), span))
+        && columns_within(dst.len(), rows, dstride, Some(at.len()));
+    if !fits {
+        return false;
+    }
+    // The gather offsets [0, 1, …, 7] · sstride, the scatter offsets · dstride and the pad in
+    // every lane (16-bit lanes, two to a word), then each entry's first byte as an address,
+    // 0 for the pad (`rows_within` kept the others in `input`, whose addresses are not 0).
+    let lane = |i: usize| match i / 8 {
+        0 => (i % 8) * sstride,
+        1 => (i % 8) * dstride,
+        _ => pad as u8 as usize,
+    } as u32;
+    let mut state = [0u32; 12 + GATHER_ENTRIES];
+    for (i, w) in state.iter_mut().take(12).enumerate() {
+        *w = lane(2 * i) | lane(2 * i + 1) << 16;
+    }
+    for (r, &a) in state[12..].iter_mut().zip(at) {
+        if a != usize::MAX {
+            *r = input.as_ptr().wrapping_add(a) as u32;
+        }
+    }
+    // SAFETY (checked above): entry k reads input[at[k] + y·sstride] for y < rows (within
+    // input: at[k] + last·sstride < input.len()), or nothing (the pad); it writes
+    // dst[k + y·dstride] for y < rows, within dst (k < at.len(), (rows − 1)·dstride +
+    // at.len() ≤ dst.len()). `DLSTP.16` with `rows` elements runs ceil(rows / 8) passes of
+    // eight lanes, the last one predicated to what is left, so the gathers and scatters stop
+    // at `rows`; the offsets fit 16-bit lanes (7·stride ≤ 65535). `state` is a live local array (the
+    // lanes, then at.len() ≥ 1 addresses).
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            "vldrh.u16    q1, [{st}]",
+            "vldrh.u16    q2, [{st}, #16]",
+            "vldrh.u16    q3, [{st}, #32]",
+            "add   {st}, {st}, #48",
+            "2:",
+            "ldr   {src}, [{st}], #4",
+            "mov   {dp}, {dk}",
+            "dlstp.16     lr, {rows}",
+            "cmp   {src}, #0",
+            "beq   4f",
+            "3:",
+            "vldrb.u16    q0, [{src}, q1]",
+            "vstrb.16     q0, [{dp}, q2]",
+            "add   {src}, {src}, {sb}",
+            "add   {dp}, {dp}, {db}",
+            "letp  lr, 3b",
+            "b     5f",
+            "4:",
+            "vstrb.16     q3, [{dp}, q2]",
+            "add   {dp}, {dp}, {db}",
+            "letp  lr, 4b",
+            "5:",
+            "add   {dk}, {dk}, #1",
+            "subs  {n}, {n}, #1",
+            "bne   2b",
+            st = inout(reg) state.as_ptr() => _,
+            n = inout(reg) at.len() => _,
+            dk = inout(reg) dst.as_mut_ptr() => _,
+            src = out(reg) _,
+            dp = out(reg) _,
+            rows = in(reg) rows,
+            sb = in(reg) 8 * sstride,
+            db = in(reg) 8 * dstride,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack),
+        );
+    }
+    true
+}
+
 /// The int8 twin of [`PairRows`] (`kernels::line::conv_s8`): pairs of positions `step`
 /// bytes apart, each a dot product of `n` int8 line bytes with two channels' int8 weights,
 /// `VMLADAVA.S8` adding 16 products at a time: 64 MACs in 9 instructions, the last
