@@ -1490,7 +1490,7 @@ fn fill_bytes_fits(
 }
 
 /// Most entries of one [`gather_bytes`] call.
-pub const GATHER_ENTRIES: usize = 64;
+pub const GATHER_ENTRIES: usize = 32;
 
 /// The head's int8 column gather with Helium (`kernels::head_s8`'s int8 line): for each
 /// entry `k < at.len()`, `dst[k + y·dstride] = input[at[k] + y·sstride]` for `y < rows`, or
@@ -1716,6 +1716,98 @@ impl PairRowsS8 {
                 [S8_BLOCK],
                 "letp  lr, 3b",
                 ["strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8"]
+            );
+        }
+        true
+    }
+}
+
+impl PairRowsS8 {
+    /// [`PairRowsS8::run_channels`] for one channel pair (biases `bias`, accumulator rows at
+    /// `acc[0 ..]` and `acc[rstride ..]`) of a window of 17 to 32 bytes, two 16-byte
+    /// blocks: the pair's four weight blocks stay in q2–q5 for every pair of positions, 20
+    /// instructions a pair (the inner loop's 33). Each position reads 32 bytes (the weights
+    /// past `n` are zero): `x` must hold them. Returns false, doing nothing, for another
+    /// window or a slice too short.
+    pub fn run_pair_short(
+        &self,
+        x: &[u8],
+        w: &[u8],
+        bias: [i32; 2],
+        (acc, rstride): (&mut [i32], usize),
+    ) -> bool {
+        let x_len = (2 * self.pairs - 1)
+            .checked_mul(self.step)
+            .and_then(|a| a.checked_add(32));
+        let fits = self.n > 16
+            && self.w_len == 64
+            && w.len() >= 64
+            && self.step <= i32::MAX as usize / 4
+            && x_len.is_some_and(|e| e <= x.len())
+            && rstride <= usize::MAX / 8
+            && rstride
+                .checked_add(2 * self.pairs)
+                .is_some_and(|e| e <= acc.len());
+        if !fits {
+            return false;
+        }
+        // The biases, the weights' address and the second row's offset in bytes.
+        let st = [
+            bias[0] as u32,
+            bias[1] as u32,
+            w.as_ptr() as u32,
+            (rstride * 4) as u32,
+        ];
+        // SAFETY (checked above): pair p reads x[2p·step ..][..32] and x[(2p + 1)·step ..]
+        // [..32] (within x_len ≤ x.len()) and w[..64], and stores acc[2p ..][..2] and
+        // acc[rstride + 2p ..][..2] (within acc). pairs ≥ 1 (`new`), so `DLS`/`LE` run the
+        // loop exactly pairs times. `st` is a live local array of 4 words.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::arch::asm!(
+                "ldr   {a1}, [{st}, #8]",
+                "vldrb.u8     q2, [{a1}]",
+                "vldrb.u8     q3, [{a1}, #16]",
+                "vldrb.u8     q4, [{a1}, #32]",
+                "vldrb.u8     q5, [{a1}, #48]",
+                "ldr   {a1}, [{st}, #12]",
+                "add   {a1}, {a0}, {a1}",
+                "add   {x1}, {x0}, {adv}, lsr #1",
+                "dls   lr, lr",
+                "2:",
+                "ldrd  r0, r4, [{st}]",
+                "mov   r2, r0",
+                "mov   r8, r4",
+                "vldrb.u8     q0, [{x0}]",
+                "vldrb.u8     q1, [{x0}, #16]",
+                "vldrb.u8     q6, [{x1}]",
+                "vldrb.u8     q7, [{x1}, #16]",
+                "add   {x0}, {x0}, {adv}",
+                "add   {x1}, {x1}, {adv}",
+                "vmladava.s8  r0, q0, q2",
+                "vmladava.s8  r0, q1, q4",
+                "vmladava.s8  r2, q6, q2",
+                "vmladava.s8  r2, q7, q4",
+                "vmladava.s8  r4, q0, q3",
+                "vmladava.s8  r4, q1, q5",
+                "vmladava.s8  r8, q6, q3",
+                "vmladava.s8  r8, q7, q5",
+                "strd  r0, r2, [{a0}], #8",
+                "strd  r4, r8, [{a1}], #8",
+                "le    lr, 2b",
+                st = in(reg) st.as_ptr(),
+                x0 = inout(reg) x.as_ptr() => _,
+                x1 = out(reg) _,
+                adv = in(reg) 2 * self.step,
+                a0 = inout(reg) acc.as_mut_ptr() => _,
+                a1 = out(reg) _,
+                inout("lr") self.pairs => _,
+                out("r0") _, out("r2") _, out("r4") _, out("r8") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                out("d12") _, out("d13") _, out("d14") _, out("d15") _,
+                options(nostack),
             );
         }
         true

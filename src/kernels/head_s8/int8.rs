@@ -208,8 +208,14 @@ pub(super) fn step<R: LogitRequant>(
                 let bias = biases.get(b..b + 1).unwrap_or(&[]);
                 // Both rays' accumulators over the range rows in one call ([`prepare`]
                 // checked the slices), then each ray's logits.
-                line.plan
-                    .run_channels(col, (w, wpair), bias, &mut acc, (MAX_FAST_ROWS, 0));
+                let short = bias.first().is_some_and(|&b| {
+                    line.plan
+                        .run_pair_short(col, w, b, (&mut acc, MAX_FAST_ROWS))
+                });
+                if !short {
+                    line.plan
+                        .run_channels(col, (w, wpair), bias, &mut acc, (MAX_FAST_ROWS, 0));
+                }
                 for half in 0..2 {
                     let a = acc.get(half * MAX_FAST_ROWS..).unwrap_or(&[]);
                     max[half] = rq.logits(
