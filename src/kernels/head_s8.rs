@@ -20,6 +20,10 @@
 //! with one `SMMULR` (`RowRequant`) when the accumulator bound allows, tracks each ray's maximum while
 //! producing its logits, and reduces the ray at once (single-pass soft-argmax).
 //!
+//! With Helium (`mve`) the optimised kernel gathers the inputs raw, one byte per entry, and
+//! folds the input offset into each ray's bias (`int8`: 16 MACs per instruction, the same
+//! accumulators); an offset whose zero point is not an int8 runs the plain twin there.
+//!
 //! The range axis must have kernel == stride, no padding and no output padding for the
 //! optimised kernel (bin `y·kh + ky` reads only range row `y`); other shapes, and shapes too
 //! large for its stack buffers, run the plain twin.
