@@ -15,7 +15,7 @@ const ROUNDS: u32 = 600;
 /// The kernels' checks, in the order they run. Every one draws from the same generator, so
 /// the order is part of the test: each round draws exactly what it drew when this was one
 /// loop, and some checks read what an earlier one drew ([`Operands`]).
-const CASES: [fn(&mut Rng, &mut Operands, &mut Tally); 17] = [
+const CASES: [fn(&mut Rng, &mut Operands, &mut Tally); 19] = [
     dot2x2_case,
     dot2x2_row_case,
     row_plan,
@@ -33,6 +33,8 @@ const CASES: [fn(&mut Rng, &mut Operands, &mut Tally); 17] = [
     fill_bytes,
     pair_rows_s8,
     exp_sums,
+    gather_bytes,
+    pair_short,
 ];
 
 /// Every kernel's checks on `ROUNDS` rounds of random operands: (cases, mismatches).
@@ -429,6 +431,20 @@ fn pair_rows_s8(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
     t.check(pair_rows_s8_agree(rng, &o.bytes));
 }
 
+/// The Helium head gather (`mve` only).
+#[cfg_attr(not(feature = "mve"), allow(unused_variables))]
+fn gather_bytes(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
+    #[cfg(feature = "mve")]
+    t.check(gather_bytes_agree(rng, &o.bytes));
+}
+
+/// The Helium s8 pair rows with the weights in registers (`mve` only).
+#[cfg_attr(not(feature = "mve"), allow(unused_variables))]
+fn pair_short(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
+    #[cfg(feature = "mve")]
+    t.check(pair_short_agree(rng, &o.bytes));
+}
+
 /// exp_sums: any m (the sums wrap the index mod 256 as the table lookup does).
 fn exp_sums(rng: &mut Rng, o: &mut Operands, t: &mut Tally) {
     let mut exp = [0u16; 256];
@@ -747,6 +763,123 @@ fn pair_rows_s8_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
         &mut spare[..acc_len - 1],
         (rstride, 0),
     ) {
+        return false;
+    }
+    got == want
+}
+
+/// `arch::gather_bytes` (the head's int8 column gather: each entry's column of rows, raw,
+/// the pad for entries outside the input) against a plain loop; bytes it must not write keep
+/// their value; a row past the input, a destination one byte short or no rows is refused.
+#[cfg(feature = "mve")]
+fn gather_bytes_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::arch::gather_bytes;
+    let rows = 1 + (rng.next() % 40) as usize;
+    let entries = 1 + (rng.next() % 32) as usize;
+    let sstride = (rng.next() % 12) as usize;
+    let dstride = entries + (rng.next() % 5) as usize;
+    let span = (rows - 1) * sstride + 1;
+    let pad = rng.next() as i8;
+    let mut at = [usize::MAX; 32];
+    for a in at[..entries].iter_mut() {
+        if !rng.next().is_multiple_of(4) {
+            *a = (rng.next() as usize) % (512 - span + 1);
+        }
+    }
+    let fill = rng.next() as u8;
+    let (mut got, mut want) = ([fill; 40 * 36], [fill; 40 * 36]);
+    let n = (rows - 1) * dstride + entries;
+    if !gather_bytes(
+        &mut got[..n],
+        (dstride, rows),
+        (bytes, &at[..entries]),
+        sstride,
+        pad,
+    ) {
+        return false;
+    }
+    for (k, &a) in at[..entries].iter().enumerate() {
+        for y in 0..rows {
+            let x = if a == usize::MAX {
+                pad
+            } else {
+                bytes[a + y * sstride]
+            };
+            want[k + y * dstride] = x as u8;
+        }
+    }
+    let mut past = at;
+    past[0] = 512 - span + 1;
+    let mut spare = [0u8; 40 * 36];
+    if gather_bytes(
+        &mut spare[..n],
+        (dstride, rows),
+        (bytes, &past[..entries]),
+        sstride,
+        pad,
+    ) || gather_bytes(
+        &mut spare[..n - 1],
+        (dstride, rows),
+        (bytes, &at[..entries]),
+        sstride,
+        pad,
+    ) || gather_bytes(
+        &mut spare[..n],
+        (dstride, 0),
+        (bytes, &at[..entries]),
+        sstride,
+        pad,
+    ) {
+        return false;
+    }
+    got == want
+}
+
+/// `arch::PairRowsS8::run_pair_short` (one channel pair, a 17 to 32 byte window, the weights
+/// in registers) against a plain loop: random windows, 1 to 6 pairs of positions, steps of
+/// 1 to 40 bytes, the rows' spare words untouched; an `x` of 32 bytes per position one short,
+/// or a window of 16 bytes, refused.
+#[cfg(feature = "mve")]
+fn pair_short_agree(rng: &mut Rng, bytes: &[i8; 512]) -> bool {
+    use epssn::arch::PairRowsS8;
+    let n = 17 + (rng.next() % 16) as usize;
+    let pairs = 1 + (rng.next() % 6) as usize;
+    let step = 1 + (rng.next() % 40) as usize;
+    let x_len = (2 * pairs - 1) * step + 32;
+    let Some(plan) = PairRowsS8::new(step, n, pairs) else {
+        return false;
+    };
+    let x: &[u8] = &bytemuck_bytes(bytes)[..x_len];
+    let mut w = [0u8; 64];
+    for (k, b) in w.iter_mut().enumerate() {
+        // Zero past the window in each block, as the head lays it out.
+        let e = (k / 32) * 16 + k % 16;
+        *b = if e < n { rng.next() as u8 } else { 0 };
+    }
+    let bias = [rng.next() as i32 >> 8, rng.next() as i32 >> 8];
+    let rstride = 2 * pairs + (rng.next() % 3) as usize;
+    let fill = rng.next() as i32;
+    let acc_len = rstride + 2 * pairs;
+    let (mut got, mut want) = ([fill; 72], [fill; 72]);
+    if !plan.run_pair_short(x, &w, bias, (&mut got[..acc_len], rstride)) {
+        return false;
+    }
+    for c in 0..2 {
+        for q in 0..2 * pairs {
+            let mut a = bias[c];
+            for e in 0..n {
+                let wb = w[(e / 16) * 32 + c * 16 + e % 16] as i8;
+                a = a.wrapping_add(wb as i32 * x[q * step + e] as i8 as i32);
+            }
+            want[c * rstride + q] = a;
+        }
+    }
+    let mut spare = [0i32; 72];
+    let short = PairRowsS8::new(step, 16, pairs);
+    if plan.run_pair_short(&x[..x_len - 1], &w, bias, (&mut spare[..acc_len], rstride))
+        || plan.run_pair_short(x, &w, bias, (&mut spare[..acc_len - 1], rstride))
+        || short.is_some_and(|p| p.run_pair_short(x, &w, bias, (&mut spare[..acc_len], rstride)))
+    {
         return false;
     }
     got == want

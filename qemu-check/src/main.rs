@@ -420,7 +420,7 @@ fn ping_average(_: &mut Rng, _: &mut Buffers, tally: &mut Tally) {
 fn inner_loops(rng: &mut Rng, _: &mut Buffers, tally: &mut Tally) {
     let (runs, bad) = inner::run(rng);
     hprintln!(
-        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps; fill_channel_pairs, fill_bytes, PairRowsS8 with mve): {} random cases, {} mismatches",
+        "inner loops (dot2x2, dot2x2_row, RowPlan, RowPlan::run_channels, pack_rows, pack_strided, requant_row_s8, requant_rows_s8, requant_max_row, table_columns4, table_columns8, exp_sums, pack_line_quads, ChannelTaps; fill_channel_pairs, fill_bytes, PairRowsS8, gather_bytes, PairRowsS8::run_pair_short with mve): {} random cases, {} mismatches",
         runs,
         bad
     );

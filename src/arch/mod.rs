@@ -28,10 +28,10 @@ mod dsp;
 mod mve;
 
 pub use insn::{pack, smlad, smmulr, sxtb16, sxtb16_ror8};
-/// The Helium-only engines of the int8 line (`kernels::line`'s `conv_s8`) and its channel-minor
-/// fill, which have no portable twin: the kernels call them only in `mve` builds.
+/// The Helium-only engines of the int8 line (`kernels::line`'s `conv_s8`, the head's int8
+/// gather) and its channel-minor fill, which have no portable twin: the kernels call them only in `mve` builds.
 #[cfg(all(feature = "mve", target_arch = "arm"))]
-pub use mve::{fill_bytes, fill_channel_pairs, PairRows, PairRowsS8};
+pub use mve::{fill_bytes, fill_channel_pairs, gather_bytes, PairRows, PairRowsS8, GATHER_ENTRIES};
 pub use rows::RowWords;
 use rows::{row_fits, Combine};
 #[cfg(all(feature = "dsp", target_arch = "arm"))]

@@ -1489,6 +1489,113 @@ fn fill_bytes_fits(
         && cs <= i32::MAX as usize / 2
 }
 
+/// Most entries of one [`gather_bytes`] call.
+pub const GATHER_ENTRIES: usize = 32;
+
+/// The head's int8 column gather with Helium (`kernels::head_s8`'s int8 line): for each
+/// entry `k < at.len()`, `dst[k + y·dstride] = input[at[k] + y·sstride]` for `y < rows`, or
+/// `pad` where `at[k]` is `usize::MAX` (a plane or column outside the input). Eight rows per
+/// pass: a byte gather widened to 16-bit lanes (`VLDRB.U16` with 16-bit byte offsets) and a
+/// byte scatter store (`VSTRB.16`): 5 instructions per eight rows of an entry, about 6 per
+/// entry around them, every entry in one call (the i16 gather's `pack_strided` took 10 per
+/// four words of two channels and a call per word column). Tail-predicated (`DLSTP.16`), so
+/// any `rows` from 1 on. Returns false, writing nothing, for no rows, more than
+/// [`GATHER_ENTRIES`] entries, seven strides past 16-bit offsets, or a row or `dst` too short.
+pub fn gather_bytes(
+    dst: &mut [u8],
+    (dstride, rows): (usize, usize),
+    (input, at): (&[i8], &[usize]),
+    sstride: usize,
+    pad: i8,
+) -> bool {
+    let Some(last) = rows.checked_sub(1) else {
+        return false;
+    };
+    let fits = at.len() <= GATHER_ENTRIES
+        && !at.is_empty()
+        && sstride
+            .checked_mul(7)
+            .is_some_and(|s| s <= u16::MAX as usize)
+        && dstride
+            .checked_mul(7)
+            .is_some_and(|s| s <= u16::MAX as usize)
+        && last
+            .checked_mul(sstride)
+            .and_then(|s| s.checked_add(1))
+            .is_some_and(|span| rows_within(input.len(), at, (1, 0), span))
+        && columns_within(dst.len(), rows, dstride, Some(at.len()));
+    if !fits {
+        return false;
+    }
+    // The gather offsets [0, 1, …, 7] · sstride, the scatter offsets · dstride and the pad in
+    // every lane (16-bit lanes, two to a word), then each entry's first byte as an address,
+    // 0 for the pad (`rows_within` kept the others in `input`, whose addresses are not 0).
+    let lane = |i: usize| match i / 8 {
+        0 => (i % 8) * sstride,
+        1 => (i % 8) * dstride,
+        _ => pad as u8 as usize,
+    } as u32;
+    let mut state = [0u32; 12 + GATHER_ENTRIES];
+    for (i, w) in state.iter_mut().take(12).enumerate() {
+        *w = lane(2 * i) | lane(2 * i + 1) << 16;
+    }
+    for (r, &a) in state[12..].iter_mut().zip(at) {
+        if a != usize::MAX {
+            *r = input.as_ptr().wrapping_add(a) as u32;
+        }
+    }
+    // SAFETY (checked above): entry k reads input[at[k] + y·sstride] for y < rows (within
+    // input: at[k] + last·sstride < input.len()), or nothing (the pad); it writes
+    // dst[k + y·dstride] for y < rows, within dst (k < at.len(), (rows − 1)·dstride +
+    // at.len() ≤ dst.len()). `DLSTP.16` with `rows` elements runs ceil(rows / 8) passes of
+    // eight lanes, the last one predicated to what is left, so the gathers and scatters stop
+    // at `rows`; the offsets fit 16-bit lanes (7·stride ≤ 65535). `state` is a live local array (the
+    // lanes, then at.len() ≥ 1 addresses).
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::asm!(
+            "vldrh.u16    q1, [{st}]",
+            "vldrh.u16    q2, [{st}, #16]",
+            "vldrh.u16    q3, [{st}, #32]",
+            "add   {st}, {st}, #48",
+            "2:",
+            "ldr   {src}, [{st}], #4",
+            "mov   {dp}, {dk}",
+            "dlstp.16     lr, {rows}",
+            "cmp   {src}, #0",
+            "beq   4f",
+            "3:",
+            "vldrb.u16    q0, [{src}, q1]",
+            "vstrb.16     q0, [{dp}, q2]",
+            "add   {src}, {src}, {sb}",
+            "add   {dp}, {dp}, {db}",
+            "letp  lr, 3b",
+            "b     5f",
+            "4:",
+            "vstrb.16     q3, [{dp}, q2]",
+            "add   {dp}, {dp}, {db}",
+            "letp  lr, 4b",
+            "5:",
+            "add   {dk}, {dk}, #1",
+            "subs  {n}, {n}, #1",
+            "bne   2b",
+            st = inout(reg) state.as_ptr() => _,
+            n = inout(reg) at.len() => _,
+            dk = inout(reg) dst.as_mut_ptr() => _,
+            src = out(reg) _,
+            dp = out(reg) _,
+            rows = in(reg) rows,
+            sb = in(reg) 8 * sstride,
+            db = in(reg) 8 * dstride,
+            out("lr") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack),
+        );
+    }
+    true
+}
+
 /// The int8 twin of [`PairRows`] (`kernels::line::conv_s8`): pairs of positions `step`
 /// bytes apart, each a dot product of `n` int8 line bytes with two channels' int8 weights,
 /// `VMLADAVA.S8` adding 16 products at a time: 64 MACs in 9 instructions, the last
@@ -1609,6 +1716,98 @@ impl PairRowsS8 {
                 [S8_BLOCK],
                 "letp  lr, 3b",
                 ["strd  r0, r2, [{a0}], #8", "strd  r4, r8, [{a1}], #8"]
+            );
+        }
+        true
+    }
+}
+
+impl PairRowsS8 {
+    /// [`PairRowsS8::run_channels`] for one channel pair (biases `bias`, accumulator rows at
+    /// `acc[0 ..]` and `acc[rstride ..]`) of a window of 17 to 32 bytes, two 16-byte
+    /// blocks: the pair's four weight blocks stay in q2–q5 for every pair of positions, 20
+    /// instructions a pair (the inner loop's 33). Each position reads 32 bytes (the weights
+    /// past `n` are zero): `x` must hold them. Returns false, doing nothing, for another
+    /// window or a slice too short.
+    pub fn run_pair_short(
+        &self,
+        x: &[u8],
+        w: &[u8],
+        bias: [i32; 2],
+        (acc, rstride): (&mut [i32], usize),
+    ) -> bool {
+        let x_len = (2 * self.pairs - 1)
+            .checked_mul(self.step)
+            .and_then(|a| a.checked_add(32));
+        let fits = self.n > 16
+            && self.w_len == 64
+            && w.len() >= 64
+            && self.step <= i32::MAX as usize / 4
+            && x_len.is_some_and(|e| e <= x.len())
+            && rstride <= usize::MAX / 8
+            && rstride
+                .checked_add(2 * self.pairs)
+                .is_some_and(|e| e <= acc.len());
+        if !fits {
+            return false;
+        }
+        // The biases, the weights' address and the second row's offset in bytes.
+        let st = [
+            bias[0] as u32,
+            bias[1] as u32,
+            w.as_ptr() as u32,
+            (rstride * 4) as u32,
+        ];
+        // SAFETY (checked above): pair p reads x[2p·step ..][..32] and x[(2p + 1)·step ..]
+        // [..32] (within x_len ≤ x.len()) and w[..64], and stores acc[2p ..][..2] and
+        // acc[rstride + 2p ..][..2] (within acc). pairs ≥ 1 (`new`), so `DLS`/`LE` run the
+        // loop exactly pairs times. `st` is a live local array of 4 words.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::arch::asm!(
+                "ldr   {a1}, [{st}, #8]",
+                "vldrb.u8     q2, [{a1}]",
+                "vldrb.u8     q3, [{a1}, #16]",
+                "vldrb.u8     q4, [{a1}, #32]",
+                "vldrb.u8     q5, [{a1}, #48]",
+                "ldr   {a1}, [{st}, #12]",
+                "add   {a1}, {a0}, {a1}",
+                "add   {x1}, {x0}, {adv}, lsr #1",
+                "dls   lr, lr",
+                "2:",
+                "ldrd  r0, r4, [{st}]",
+                "mov   r2, r0",
+                "mov   r8, r4",
+                "vldrb.u8     q0, [{x0}]",
+                "vldrb.u8     q1, [{x0}, #16]",
+                "vldrb.u8     q6, [{x1}]",
+                "vldrb.u8     q7, [{x1}, #16]",
+                "add   {x0}, {x0}, {adv}",
+                "add   {x1}, {x1}, {adv}",
+                "vmladava.s8  r0, q0, q2",
+                "vmladava.s8  r0, q1, q4",
+                "vmladava.s8  r2, q6, q2",
+                "vmladava.s8  r2, q7, q4",
+                "vmladava.s8  r4, q0, q3",
+                "vmladava.s8  r4, q1, q5",
+                "vmladava.s8  r8, q6, q3",
+                "vmladava.s8  r8, q7, q5",
+                "strd  r0, r2, [{a0}], #8",
+                "strd  r4, r8, [{a1}], #8",
+                "le    lr, 2b",
+                st = in(reg) st.as_ptr(),
+                x0 = inout(reg) x.as_ptr() => _,
+                x1 = out(reg) _,
+                adv = in(reg) 2 * self.step,
+                a0 = inout(reg) acc.as_mut_ptr() => _,
+                a1 = out(reg) _,
+                inout("lr") self.pairs => _,
+                out("r0") _, out("r2") _, out("r4") _, out("r8") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+                out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                out("d12") _, out("d13") _, out("d14") _, out("d15") _,
+                options(nostack),
             );
         }
         true

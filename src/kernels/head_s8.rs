@@ -20,6 +20,10 @@
 //! with one `SMMULR` (`RowRequant`) when the accumulator bound allows, tracks each ray's maximum while
 //! producing its logits, and reduces the ray at once (single-pass soft-argmax).
 //!
+//! With Helium (`mve`) the optimised kernel gathers the inputs raw, one byte per entry, and
+//! folds the input offset into each ray's bias (`int8`: 16 MACs per instruction, the same
+//! accumulators); an offset whose zero point is not an int8 runs the plain twin there.
+//!
 //! The range axis must have kernel == stride, no padding and no output padding for the
 //! optimised kernel (bin `y·kh + ky` reads only range row `y`); other shapes, and shapes too
 //! large for its stack buffers, run the plain twin.
@@ -29,7 +33,7 @@
 
 use super::line::RowRequant;
 use super::soft_argmax_s8::{
-    check_params, ray_depth_max, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
+    check_params, soft_argmax_s8_plain, SoftArgmaxParams, SoftArgmaxShape, MAX_BINS,
 };
 use super::{
     check_conv_transpose, check_conv_transpose_shape, finish, mul3, CheckedParams, ConvParams,
@@ -38,6 +42,59 @@ use super::{
 use crate::config::{LayerKind, LayerShape};
 use crate::requant::Apply;
 use fixed::types::U16F16;
+
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+mod int8;
+
+/// The line the optimised kernel's weights are laid out for: with Helium the int8 line
+/// (`int8`: raw bytes, the offset folded into the biases), elsewhere the i16 gather.
+#[cfg(all(feature = "mve", target_arch = "arm"))]
+type Line = int8::Line;
+/// The line the optimised kernel's weights are laid out for: the i16 gather.
+#[cfg(not(all(feature = "mve", target_arch = "arm")))]
+type Line = ();
+
+/// Lays out the optimised kernel's weights for the build's line; `None` (the plain kernel
+/// runs) where the int8 line does not take the shape or the offset.
+fn prepare_line(
+    shape: &ConvShape,
+    f: &Fast,
+    params: &ConvParams<'_>,
+    wbuf: &mut [u32; HEAD_W_WORDS],
+) -> Option<Line> {
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    {
+        int8::prepare(shape, f, params, wbuf)
+    }
+    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+    {
+        prepare_weights(shape, f, params, wbuf);
+        Some(())
+    }
+}
+
+/// One optimised step on the build's line.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn step_line<R: LogitRequant>(
+    shape: &ConvShape,
+    (f, line): (&Fast, &Line),
+    src: &Planes<'_>,
+    params: &ConvParams<'_>,
+    rq: R,
+    wbuf: &[u32; HEAD_W_WORDS],
+    soft: &SoftArgmaxParams<'_>,
+    depth: &mut [U16F16],
+) {
+    #[cfg(all(feature = "mve", target_arch = "arm"))]
+    int8::step(shape, f, line, src, params, rq, wbuf, soft, depth);
+    #[cfg(not(all(feature = "mve", target_arch = "arm")))]
+    {
+        // The i16 gather keeps no state of its own: its layout is `Fast`'s.
+        let _ = line;
+        step_fast(shape, f, src, params, rq, wbuf, soft, depth);
+    }
+}
 
 /// Most input range rows of the optimised kernel (its accumulator rows).
 pub const MAX_FAST_ROWS: usize = 128;
@@ -208,7 +265,7 @@ pub struct HeadPlan<'a> {
     shape: ConvShape,
     params: ConvParams<'a>,
     soft: SoftArgmaxParams<'a>,
-    fast: Option<(Fast, bool)>,
+    fast: Option<(Fast, bool, Line)>,
     wbuf: &'a [u32; HEAD_W_WORDS],
 }
 
@@ -257,9 +314,9 @@ impl<'a> HeadPlan<'a> {
         weights: &'a mut HeadWeights,
     ) -> Self {
         let params = *checked.params();
-        let fast = fast_sizes(shape).map(|f| {
-            prepare_weights(shape, &f, &params, &mut weights.0);
-            (f, params.requant[0].fits_fast(checked.bound()))
+        let fast = fast_sizes(shape).and_then(|f| {
+            let fits = params.requant[0].fits_fast(checked.bound());
+            prepare_line(shape, &f, &params, &mut weights.0).map(|line| (f, fits, line))
         });
         Self {
             shape: *shape,
@@ -286,12 +343,21 @@ impl<'a> HeadPlan<'a> {
     fn run_step(&self, src: &Planes<'_>, depth: &mut [U16F16]) {
         let (shape, p, soft) = (&self.shape, &self.params, &self.soft);
         match &self.fast {
-            Some((f, true)) => {
+            Some((f, true, line)) => {
                 let rq = RowRequant::new(p.requant[0]);
-                step_fast(shape, f, src, p, rq, self.wbuf, soft, depth);
+                step_line(shape, (f, line), src, p, rq, self.wbuf, soft, depth);
             }
-            Some((f, false)) => {
-                step_fast(shape, f, src, p, p.requant[0], self.wbuf, soft, depth);
+            Some((f, false, line)) => {
+                step_line(
+                    shape,
+                    (f, line),
+                    src,
+                    p,
+                    p.requant[0],
+                    self.wbuf,
+                    soft,
+                    depth,
+                );
             }
             None => step_plain(shape, src, p, soft, depth),
         }
@@ -410,9 +476,11 @@ struct Fast {
     /// `P`, `Q`.
     planes: usize,
     cols: usize,
-    /// Channels padded to a multiple of 4.
+    /// Channels padded to a multiple of 4 (the i16 gather's; the int8 line packs them).
+    #[cfg_attr(all(feature = "mve", target_arch = "arm"), allow(dead_code))]
     vp: usize,
     /// Words per range row: `Q · P · vp / 2` (even).
+    #[cfg_attr(all(feature = "mve", target_arch = "arm"), allow(dead_code))]
     n: usize,
     /// Ray phases `sd · sw` and their pairs.
     rays: usize,
@@ -520,6 +588,7 @@ fn run<'a>(
 /// the two rays' words interleaved (an odd last ray paired with itself), word `k` covering
 /// slot `s`, plane tap `j` and channels `2m, 2m + 1` with `k = (s·P + j)·vp/2 + m`; slot `s`
 /// holds column tap `(r − s) mod Q`. Taps outside the kernel are zero.
+#[cfg(not(all(feature = "mve", target_arch = "arm")))]
 fn prepare_weights(shape: &ConvShape, f: &Fast, params: &ConvParams<'_>, wbuf: &mut [u32]) {
     let [kd, kh, kw] = shape.kernel;
     let [sd, _, sw] = shape.stride;
@@ -560,6 +629,7 @@ fn prepare_weights(shape: &ConvShape, f: &Fast, params: &ConvParams<'_>, wbuf: &
 
 /// Gathers input column `x` (if inside `0..W`, else zeros) of every plane tap and channel
 /// into slot `s` of the range rows' words (offset added), a channel pair per word.
+#[cfg(not(all(feature = "mve", target_arch = "arm")))]
 #[inline(always)]
 fn gather_column(
     shape: &ConvShape,
@@ -645,6 +715,7 @@ fn requant_logits<R: Apply>(
 }
 
 /// One step, optimised (validated shape that [`fast_sizes`] accepts, weights prepared).
+#[cfg(not(all(feature = "mve", target_arch = "arm")))]
 #[allow(clippy::too_many_arguments)]
 fn step_fast<R: LogitRequant>(
     shape: &ConvShape,
@@ -722,7 +793,11 @@ fn step_fast<R: LogitRequant>(
             }
             for (half, at) in targets.iter().enumerate() {
                 if let Some(at) = *at {
-                    depth[at] = ray_depth_max(&logits[half][..bins], max[half], soft);
+                    depth[at] = super::soft_argmax_s8::ray_depth_max(
+                        &logits[half][..bins],
+                        max[half],
+                        soft,
+                    );
                 }
             }
         }
