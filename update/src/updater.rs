@@ -8,7 +8,9 @@
 
 use embedded_storage::nor_flash::{NorFlashError, NorFlashErrorKind};
 
-use epssn::blob::{Blob, BlobError};
+pub use crate::error::UpdateError;
+
+use epssn::blob::Blob;
 use epssn::config;
 use epssn::crc32::crc32;
 
@@ -55,38 +57,6 @@ pub struct Upload {
     pub total: u32,
     /// Bytes held from the start, written and read back; the upload resumes here.
     pub held: u32,
-}
-
-/// Why an update step was refused. The active model serves on after every one of them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum UpdateError {
-    /// The chunk's bytes do not match its CRC.
-    ChunkCrc,
-    /// A chunk not on a page, past the image, short of a page before the end, or beyond
-    /// what is held (resume from [`Upload::held`]); or a chunk after 0 with no upload begun.
-    ChunkRange,
-    /// The slot held bytes that neither equal nor can become the chunk (a different upload
-    /// cut short): it was erased, resend from offset 0.
-    Conflict,
-    /// The image header of the chunk at offset 0 was refused.
-    Header(HeaderError),
-    /// Commit before the whole image is held.
-    Incomplete,
-    /// The blob was refused: format, CRC or spec hash (`epssn::blob`).
-    Blob(BlobError),
-    /// The signature is not by the compiled-in key.
-    Signature,
-    /// The version is not above the active model's.
-    Rollback {
-        /// The active version.
-        active: u32,
-        /// The upload's.
-        offered: u32,
-    },
-    /// The boot self-test failed on the new model.
-    SelfTest,
-    /// The flash failed (a write read back wrong, or an error from the driver).
-    Flash(NorFlashErrorKind),
 }
 
 /// The update partition and what it says.
@@ -224,30 +194,31 @@ impl<F: MappedFlash> Updater<F> {
             return Err(UpdateError::ChunkRange);
         }
         let slot = self.upload_slot();
-        let total = if offset == 0 {
+        // The image's length: from the chunk's own header at offset 0, else from the slot's.
+        let (total, restart) = if offset == 0 {
             let header = Header::parse(data, self.blob_cap()).map_err(UpdateError::Header)?;
-            let held = self.upload();
-            let same = held.is_some_and(|u| {
-                let at = self.layout.slot(slot);
+            let at = self.layout.slot(slot);
+            let same = self.upload().is_some_and(|u| {
                 self.flash.mapped()[at..at + HEADER_LEN] == data[..HEADER_LEN]
                     && u.total as usize == header.image_len()
             });
-            if !same {
-                self.erase_slot(slot)?;
-            }
-            header.image_len()
+            (header.image_len(), !same)
         } else {
             let up = self.upload().ok_or(UpdateError::ChunkRange)?;
             if offset > up.held as usize {
                 return Err(UpdateError::ChunkRange);
             }
-            up.total as usize
+            (up.total as usize, false)
         };
         let end = offset
             .checked_add(data.len())
             .ok_or(UpdateError::ChunkRange)?;
         if end > total || (!data.len().is_multiple_of(PAGE) && end != total) {
             return Err(UpdateError::ChunkRange);
+        }
+        // Only a chunk found good starts a new upload (erasing the slot).
+        if restart {
+            self.erase_slot(slot)?;
         }
         for (i, page) in data.chunks(PAGE).enumerate() {
             self.write_page(slot, offset / PAGE + i, page)?;

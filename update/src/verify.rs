@@ -60,6 +60,14 @@ mod tests {
     }
 
     #[test]
+    fn the_test_key_pair_agrees_with_openssl() {
+        // update/test-key/public was derived from `private` by OpenSSL (Python's
+        // cryptography), not by this crate.
+        let secret: [u8; 32] = *include_bytes!("../test-key/private");
+        assert_eq!(public_key(&secret), *include_bytes!("../test-key/public"));
+    }
+
+    #[test]
     fn verify_takes_only_the_signers_key() {
         let m = [7u8; MESSAGE_LEN];
         let s = sign(&[1; 32], &m);

@@ -104,6 +104,7 @@ fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
     u.commit(&key(), self_test).unwrap();
     let total = u.flash().ops() - start;
     assert_eq!(total, before_record + 1, "the switch is one write");
+    eprintln!("an update is {total} writes and erases; the power is cut at each");
     for cut in 0..total {
         let mut mem = base.clone();
         let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
@@ -243,6 +244,15 @@ fn refusals_leave_the_old_model_serving_and_say_why() {
     assert_eq!(u.chunk(5, tail, crc), Err(UpdateError::ChunkRange));
     assert_eq!(u.commit(&key(), self_test), Err(UpdateError::Incomplete));
     assert_eq!(u.upload().map(|h| h.held), Some(CHUNK as u32));
+    // A refused first chunk of another image erases nothing of the held upload.
+    let other = signed(&SECRET, 3, NEW);
+    let short = &other[..1500];
+    let crc = epssn::crc32::crc32(short);
+    assert_eq!(u.chunk(0, short, crc), Err(UpdateError::ChunkRange));
+    assert_eq!(
+        u.upload().map(|h| (h.version, h.held)),
+        Some((2, CHUNK as u32))
+    );
     upload(&mut u, &img, CHUNK).unwrap();
     assert_eq!(u.commit(&key(), self_test).map(|a| a.version()), Ok(2));
 }
