@@ -15,13 +15,13 @@ cd "$(dirname "$0")/.."
 seconds=${1:-30}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(link_decoder model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply poses_csv)
+[ ${#targets[@]} -gt 0 ] || targets=(link_decoder link_update model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply poses_csv)
 
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install --locked cargo-fuzz
 
 corpus=fuzz/corpus
-mkdir -p "$corpus"/{link_decoder,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply,poses_csv}
+mkdir -p "$corpus"/{link_decoder,link_update,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply,poses_csv}
 cargo run -q --example link_seeds -- "$corpus/link_decoder"
 cp "$(awk '$1 == "epssn-s.json" { print $2 }' weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
 cp "$corpus/model_from_blob/shipped.q8.bin" "$corpus/model_from_blob_fixed/shipped.q8.bin"

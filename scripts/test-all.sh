@@ -6,6 +6,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 step() { printf '\n==> %s\n' "$*"; }
+# Every firmware build here embeds the test key for signed model updates, named explicitly (a
+# release firmware without EPSSN_UPDATE_KEY does not build; docs/UPDATE.md).
+export EPSSN_UPDATE_KEY=update/test-key/public
 
 step "toolchain and tools"
 # rust-toolchain.toml names the toolchain, its components and the Cortex-M7 and M55 targets; rustup

@@ -4,7 +4,11 @@
 //!   accumulator bound, so a bad blob fails the build, not the vehicle;
 //! - runs the library on the host on a fixed pair of synthetic images and stores the depth map
 //!   as the golden vector of the boot self-test: the firmware on the target must reproduce the
-//!   x86 bits exactly (flash holds the map's CRC-32).
+//!   x86 bits exactly (flash holds the map's CRC-32);
+//! - embeds the public key that signed model updates must verify against, from
+//!   `EPSSN_UPDATE_KEY` (a 32-byte file, `host-sim keygen`'s DIR/public; absolute or from the
+//!   repository root). A release build without it fails: the test key is taken only when named
+//!   (`EPSSN_UPDATE_KEY=update/test-key/public`); a debug build falls back to it.
 
 use std::path::{Path, PathBuf};
 
@@ -50,6 +54,7 @@ fn main() {
     let model = Model::from_blob(&blob)
         .unwrap_or_else(|e| panic!("weight blob {} refused: {e:?}", blob_path.display()));
     std::fs::write(out.join("weights.bin"), &blob).unwrap();
+    write(&out, "update_key.bin", &update_key(&root));
 
     let mut ws = Box::new(Workspace::new());
     let reference = synthetic_image(1);
@@ -72,6 +77,34 @@ fn main() {
         "selftest_depth_crc.rs",
         format!("0x{crc:08x}").as_bytes(),
     );
+}
+
+/// The test key pair's public half (its private half signs the tests' and the SIL's images).
+const TEST_KEY: &str = "update/test-key/public";
+
+/// The update key of this build: `EPSSN_UPDATE_KEY`, else (debug builds only) the test key.
+fn update_key(root: &Path) -> [u8; 32] {
+    println!("cargo:rerun-if-env-changed=EPSSN_UPDATE_KEY");
+    let release = std::env::var("PROFILE").is_ok_and(|p| p == "release");
+    let path = match std::env::var("EPSSN_UPDATE_KEY") {
+        Ok(p) => root.join(p),
+        Err(_) if release => panic!(
+            "a release firmware needs the public key model updates are signed with: \
+             EPSSN_UPDATE_KEY=DIR/public (host-sim keygen --out DIR), or the test key named \
+             explicitly, EPSSN_UPDATE_KEY={TEST_KEY}"
+        ),
+        Err(_) => root.join(TEST_KEY),
+    };
+    println!("cargo:rerun-if-changed={}", path.display());
+    let bytes =
+        std::fs::read(&path).unwrap_or_else(|e| panic!("update key {}: {e}", path.display()));
+    bytes.as_slice().try_into().unwrap_or_else(|_| {
+        panic!(
+            "update key {}: {} bytes, a public key has 32",
+            path.display(),
+            bytes.len()
+        )
+    })
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) {

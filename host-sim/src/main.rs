@@ -46,6 +46,10 @@ enum Command {
     /// Evaluate weights on a simulated test folder: the f64 reference network and, with
     /// `--int8`, the int8 library (MAE and CD as in the paper).
     Eval(cmd::eval::EvalArgs),
+    /// A new Ed25519 key pair for signed model updates: DIR/private, DIR/public.
+    Keygen(cmd::update::KeygenArgs),
+    /// Sign a weight blob as a model version: the update image a device takes over the link.
+    Sign(cmd::update::SignArgs),
 }
 
 fn main() -> ExitCode {
@@ -64,6 +68,8 @@ fn main() -> ExitCode {
         Command::Sil(args) => epssn_sil_core::sil::run(&args.into(), &mut stdout.lock()),
         Command::Bench(args) => epssn_sil_core::bench::run(&args.into(), &mut stdout.lock()),
         Command::Eval(args) => epssn_eval::eval::run(&args.into()),
+        Command::Keygen(args) => host_sim::update::keygen(&args.into(), &mut stdout.lock()),
+        Command::Sign(args) => host_sim::update::sign(&args.into(), &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

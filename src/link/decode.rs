@@ -8,10 +8,10 @@ use crate::crc32::Crc32;
 use super::header::{ErrorCode, Header};
 #[cfg(not(target_os = "none"))]
 use super::message::pair_of;
-use super::message::{DepthData, Message, Status};
+use super::message::{DepthData, Held, Message, Serving, Status};
 use super::{
-    kind, CRC_LEN, DEPTH_PAYLOAD_LEN, FRAME_PAYLOAD_LEN, MAX_HEADER_LEN, MAX_MESSAGE_LEN,
-    MAX_PAYLOAD_LEN, PREAMBLE_LEN, SYNC,
+    kind, CRC_LEN, DEPTH_PAYLOAD_LEN, FRAME_PAYLOAD_LEN, MAX_CHUNK_LEN, MAX_HEADER_LEN,
+    MAX_MESSAGE_LEN, MAX_PAYLOAD_LEN, PREAMBLE_LEN, SYNC,
 };
 use crate::attitude::Attitude;
 use crate::fault::{ResetCause, RECORD_LEN};
@@ -187,9 +187,35 @@ fn check_header(h: &Header<'_>) -> Result<usize, DecodeError> {
             need(h.code.is_some(), "code")?;
             expect(0)
         }
+        kind::CHUNK => {
+            need(h.off.is_some(), "off")?;
+            need(h.crc.is_some(), "crc")?;
+            if len as usize > MAX_PAYLOAD_LEN {
+                Err(DecodeError::Oversized { len })
+            } else if len == 0 || len as usize > MAX_CHUNK_LEN {
+                Err(DecodeError::BadLength {
+                    len,
+                    expected: MAX_CHUNK_LEN as u32,
+                })
+            } else {
+                Ok(len as usize)
+            }
+        }
+        kind::UPLOAD => {
+            need(h.slot.is_some(), "slot")?;
+            let held = [h.id, h.ver, h.total, h.held].map(|f| f.is_some());
+            // All four or none, and never more held than the image has.
+            need(held.iter().all(|&p| p == held[0]), "id/ver/total/held")?;
+            need(h.held <= h.total, "held")?;
+            expect(0)
+        }
         // A device's hello carries its fault record until the host acknowledges it.
         kind::HELLO if len as usize == RECORD_LEN => Ok(RECORD_LEN),
-        kind::STATUS_REQUEST | kind::SHUTDOWN | kind::HELLO => expect(0),
+        kind::STATUS_REQUEST
+        | kind::SHUTDOWN
+        | kind::HELLO
+        | kind::UPLOAD_REQUEST
+        | kind::COMMIT => expect(0),
         _ => Err(DecodeError::UnknownType),
     }
 }
@@ -227,6 +253,10 @@ fn status_of(h: &Header<'_>) -> Status {
         pair: pair_of(h).ok().flatten(),
         #[cfg(target_os = "none")]
         pair: None,
+        model: h.ver.map(|version| Serving {
+            slot: h.slot,
+            version,
+        }),
     }
 }
 
@@ -272,6 +302,27 @@ fn build<'a>(h: Header<'a>, payload: &'a [u8]) -> Message<'a> {
             msg: h.msg.unwrap_or(""),
         },
         kind::SHUTDOWN => Message::Shutdown { seq },
+        kind::CHUNK => Message::Chunk {
+            seq,
+            offset: h.off.unwrap_or(0),
+            crc: h.crc.unwrap_or(0),
+            data: payload,
+        },
+        kind::UPLOAD_REQUEST => Message::UploadRequest { seq },
+        kind::COMMIT => Message::Commit { seq },
+        kind::UPLOAD => Message::Upload {
+            seq,
+            slot: h.slot.unwrap_or(0),
+            held: match (h.id, h.ver, h.total, h.held) {
+                (Some(id), Some(version), Some(total), Some(held)) => Some(Held {
+                    id,
+                    version,
+                    total,
+                    held,
+                }),
+                _ => None,
+            },
+        },
         #[cfg(feature = "fault-injection")]
         kind::INJECT => Message::Inject {
             seq,

@@ -94,6 +94,36 @@ pub struct Header<'a> {
     /// host read; the device forgets that record.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ack: Option<u32>,
+    /// Chunk: the chunk's offset in the update image, bytes. The host sends it, the device
+    /// never does (its build does not serialise it: flash).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_serializing))]
+    pub off: Option<u32>,
+    /// Chunk: CRC-32 (IEEE) of the chunk's bytes, checked before they are written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_serializing))]
+    pub crc: Option<u32>,
+    /// Upload: the slot uploads go to. Status, hello: the slot the serving model lies in
+    /// (absent: the model compiled into the image). The device sends it, never parses it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub slot: Option<u8>,
+    /// Upload: which upload the slot holds (CRC-32 of the image's header).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub id: Option<u32>,
+    /// Upload: the held image's model version. Status, hello: the serving model's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub ver: Option<u32>,
+    /// Upload: bytes of the whole image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub total: Option<u32>,
+    /// Upload: bytes held from the image's start; the upload resumes there.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(target_os = "none", serde(skip_deserializing))]
+    pub held: Option<u32>,
     /// Error: [`ErrorCode`] number.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub code: Option<u16>,
@@ -130,6 +160,29 @@ pub enum ErrorCode {
     Model = 11,
     /// The line went idle inside a message.
     Truncated = 12,
+    /// A chunk not on a page, past the image, short of a page before its end, beyond what is
+    /// held, or after offset 0 with no upload begun.
+    UploadRange = 13,
+    /// A chunk's bytes do not match its `crc`.
+    UploadCrc = 14,
+    /// The slot held bytes of another upload, cut short: it was erased; resend from 0.
+    UploadConflict = 15,
+    /// The update image's header was refused (magic, version 0, length).
+    UpdateHeader = 16,
+    /// `commit` before the whole image is held.
+    UpdateIncomplete = 17,
+    /// The blob was refused: format, length or CRC.
+    UpdateBlob = 18,
+    /// The blob was quantised for another model spec.
+    UpdateSpec = 19,
+    /// The signature is not by the key compiled into the firmware.
+    UpdateSignature = 20,
+    /// The version is not above the serving model's.
+    UpdateVersion = 21,
+    /// The boot self-test failed on the new model.
+    UpdateSelfTest = 22,
+    /// The update partition's flash failed.
+    UpdateFlash = 23,
 }
 
 impl Header<'_> {
@@ -152,7 +205,7 @@ impl Header<'_> {
 
 impl ErrorCode {
     /// Every code, for lookups.
-    pub const ALL: [ErrorCode; 12] = [
+    pub const ALL: [ErrorCode; 23] = [
         ErrorCode::BadSync,
         ErrorCode::HeaderTooLong,
         ErrorCode::BadJson,
@@ -165,6 +218,17 @@ impl ErrorCode {
         ErrorCode::Unexpected,
         ErrorCode::Model,
         ErrorCode::Truncated,
+        ErrorCode::UploadRange,
+        ErrorCode::UploadCrc,
+        ErrorCode::UploadConflict,
+        ErrorCode::UpdateHeader,
+        ErrorCode::UpdateIncomplete,
+        ErrorCode::UpdateBlob,
+        ErrorCode::UpdateSpec,
+        ErrorCode::UpdateSignature,
+        ErrorCode::UpdateVersion,
+        ErrorCode::UpdateSelfTest,
+        ErrorCode::UpdateFlash,
     ];
 
     /// The number on the wire.

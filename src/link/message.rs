@@ -48,6 +48,33 @@ pub struct Status {
     /// The candidate pair the last frame formed and the gate's verdict on it (a status reply
     /// after a frame carries a rejection; none when the frame formed no candidate).
     pub pair: Option<PairCheck>,
+    /// The model that serves (`slot`, `ver` on the wire): in a device's hello and the reply
+    /// to a `commit`; none in a plain status.
+    pub model: Option<Serving>,
+}
+
+/// Which model serves.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Serving {
+    /// The slot it lies in; `None` for the model compiled into the image.
+    pub slot: Option<u8>,
+    /// Its version (0: the compiled-in model).
+    pub version: u32,
+}
+
+/// What the upload slot holds of an upload: the device's reply to `chunk` and `upload?`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Held {
+    /// Which upload: CRC-32 of the image's header.
+    pub id: u32,
+    /// The model version it carries.
+    pub version: u32,
+    /// Bytes of the whole image.
+    pub total: u32,
+    /// Bytes held from the start: the upload resumes here.
+    pub held: u32,
 }
 
 /// Writes a pair check into a header. Not inlined: one copy for its two callers (flash).
@@ -71,6 +98,10 @@ fn put_status(h: &mut Header<'_>, status: &Status) {
     h.stack = Some(status.stack_high_water);
     h.cached = Some(status.cached);
     put_pair(h, &status.pair);
+    if let Some(m) = status.model {
+        h.slot = m.slot;
+        h.ver = Some(m.version);
+    }
 }
 
 #[cfg_attr(target_os = "none", allow(dead_code))]
@@ -222,6 +253,38 @@ pub enum Message<'a> {
         /// Sequence number.
         seq: u32,
     },
+    /// Host → device: bytes of a signed update image (1 to
+    /// [`MAX_CHUNK_LEN`](super::MAX_CHUNK_LEN)).
+    Chunk {
+        /// Sequence number.
+        seq: u32,
+        /// Offset in the image (`off`).
+        offset: u32,
+        /// CRC-32 of `data`.
+        crc: u32,
+        /// The bytes.
+        data: &'a [u8],
+    },
+    /// Host → device: what is held of an upload?
+    UploadRequest {
+        /// Sequence number.
+        seq: u32,
+    },
+    /// Device → host: the upload slot and what it holds.
+    Upload {
+        /// Sequence number.
+        seq: u32,
+        /// The slot uploads go to.
+        slot: u8,
+        /// The upload it holds; `None` before one has begun.
+        held: Option<Held>,
+    },
+    /// Host → device: check the held upload and make it serve (answered by a `status`
+    /// carrying the serving model, or an error saying why not).
+    Commit {
+        /// Sequence number.
+        seq: u32,
+    },
     /// Host → device, test builds only: provoke the fault `what`
     /// ([`fault::inject`](crate::fault::inject); `code` on the wire).
     #[cfg(feature = "fault-injection")]
@@ -254,7 +317,11 @@ impl Message<'_> {
             | Message::Status { seq, .. }
             | Message::Error { seq, .. }
             | Message::Hello { seq, .. }
-            | Message::Shutdown { seq } => *seq,
+            | Message::Shutdown { seq }
+            | Message::Chunk { seq, .. }
+            | Message::UploadRequest { seq }
+            | Message::Upload { seq, .. }
+            | Message::Commit { seq } => *seq,
             #[cfg(feature = "fault-injection")]
             Message::Inject { seq, .. } => *seq,
         }
@@ -270,6 +337,10 @@ impl Message<'_> {
             Message::Error { .. } => kind::ERROR,
             Message::Hello { .. } => kind::HELLO,
             Message::Shutdown { .. } => kind::SHUTDOWN,
+            Message::Chunk { .. } => kind::CHUNK,
+            Message::UploadRequest { .. } => kind::UPLOAD_REQUEST,
+            Message::Upload { .. } => kind::UPLOAD,
+            Message::Commit { .. } => kind::COMMIT,
             #[cfg(feature = "fault-injection")]
             Message::Inject { .. } => kind::INJECT,
         }
@@ -340,7 +411,25 @@ impl Message<'_> {
                 h.ack = *ack;
                 Payload::Bytes(record.unwrap_or(&[]))
             }
-            Message::StatusRequest { .. } | Message::Shutdown { .. } => Payload::Bytes(&[]),
+            Message::Chunk {
+                offset, crc, data, ..
+            } => {
+                h.off = Some(*offset);
+                h.crc = Some(*crc);
+                Payload::Bytes(data)
+            }
+            Message::Upload { slot, held, .. } => {
+                h.slot = Some(*slot);
+                if let Some(u) = held {
+                    (h.id, h.ver, h.total, h.held) =
+                        (Some(u.id), Some(u.version), Some(u.total), Some(u.held));
+                }
+                Payload::Bytes(&[])
+            }
+            Message::StatusRequest { .. }
+            | Message::Shutdown { .. }
+            | Message::UploadRequest { .. }
+            | Message::Commit { .. } => Payload::Bytes(&[]),
             #[cfg(feature = "fault-injection")]
             Message::Inject { what, .. } => {
                 h.code = Some(*what);

@@ -64,6 +64,9 @@ pub const MAX_PAYLOAD_LEN: usize = if FRAME_PAYLOAD_LEN > DEPTH_PAYLOAD_LEN {
 pub const MAX_MESSAGE_LEN: usize = PREAMBLE_LEN + MAX_HEADER_LEN + MAX_PAYLOAD_LEN + CRC_LEN;
 /// Longest error text in an error message.
 pub const MAX_ERROR_TEXT: usize = 48;
+/// Longest chunk of an update image in one `chunk` message.
+pub const MAX_CHUNK_LEN: usize = 4096;
+const _: () = assert!(MAX_CHUNK_LEN <= MAX_PAYLOAD_LEN);
 /// Source views of a depth map at most.
 pub const MAX_SOURCES: usize = config::MAX_VIEWS - 1;
 
@@ -87,6 +90,14 @@ pub mod kind {
     pub const INJECT: &str = "inject";
     /// Either direction: starts a session; accepted whatever its `seq` (docs/LINK.md).
     pub const HELLO: &str = "hello";
+    /// Host → device: a chunk of a signed update image, at `off`, with its `crc`.
+    pub const CHUNK: &str = "chunk";
+    /// Host → device: asks what the device holds of an upload.
+    pub const UPLOAD_REQUEST: &str = "upload?";
+    /// Device → host: what the upload slot holds (the reply to `chunk` and `upload?`).
+    pub const UPLOAD: &str = "upload";
+    /// Host → device: check the held upload and make it the serving model.
+    pub const COMMIT: &str = "commit";
 }
 
 #[cfg(test)]
@@ -154,6 +165,7 @@ mod tests {
                         let payload = match &m {
                             Message::Frame { image, .. } => image.len(),
                             Message::Depth { depth, .. } => depth.len(),
+                            Message::Chunk { data, .. } => data.len(),
                             _ => 0,
                         };
                         Ev::Msg(m.seq(), m.kind(), payload)
@@ -309,6 +321,7 @@ mod tests {
                         residual_deg: 1.5,
                         verdict: Verdict::Residual,
                     }),
+                    model: None,
                 },
             },
             Message::Error {
@@ -334,6 +347,10 @@ mod tests {
                     stack_high_water: 4,
                     cached: 5,
                     pair: None,
+                    model: Some(Serving {
+                        slot: Some(1),
+                        version: u32::MAX,
+                    }),
                 }),
                 reset: Some(crate::fault::ResetCause::PowerOn),
                 record: None,
@@ -345,6 +362,39 @@ mod tests {
                 reset: Some(crate::fault::ResetCause::Panic),
                 record: Some(&record[..]),
                 ack: None,
+            },
+            Message::Chunk {
+                seq: 11,
+                offset: 4096,
+                crc: 0x1234_5678,
+                data: &img[..MAX_CHUNK_LEN],
+            },
+            Message::UploadRequest { seq: 12 },
+            Message::Upload {
+                seq: 13,
+                slot: 1,
+                held: None,
+            },
+            Message::Upload {
+                seq: 14,
+                slot: 0,
+                held: Some(Held {
+                    id: u32::MAX,
+                    version: u32::MAX,
+                    total: u32::MAX,
+                    held: u32::MAX,
+                }),
+            },
+            Message::Commit { seq: 15 },
+            Message::Status {
+                seq: 16,
+                status: Status {
+                    model: Some(Serving {
+                        slot: None,
+                        version: 0,
+                    }),
+                    ..Status::default()
+                },
             },
         ];
         let mut d = Decoder::new();
@@ -384,6 +434,83 @@ mod tests {
             assert_eq!(got, std::vec![m.seq()]);
             assert_eq!(d.pending(), 0);
         }
+    }
+
+    #[test]
+    fn update_messages_with_missing_or_wrong_fields_are_refused() {
+        let chunk = |off: Option<u32>, crc: Option<u32>, len: usize| {
+            let h = Header {
+                t: kind::CHUNK,
+                seq: 1,
+                off,
+                crc,
+                len: (len > 0).then_some(len as u32),
+                ..Header::default()
+            };
+            let payload = std::vec![7u8; len];
+            feed(&mut Decoder::new(), &raw_bytes(&h, &payload))
+        };
+        assert_eq!(
+            chunk(Some(0), Some(1), 1),
+            std::vec![Ev::Msg(1, kind::CHUNK, 1)]
+        );
+        let field = |field| std::vec![Ev::Err(DecodeError::BadField { field })];
+        assert_eq!(chunk(None, Some(1), 8), field("off"));
+        assert_eq!(chunk(Some(0), None, 8), field("crc"));
+        let bad_len = |len| {
+            std::vec![Ev::Err(DecodeError::BadLength {
+                len,
+                expected: MAX_CHUNK_LEN as u32
+            })]
+        };
+        assert_eq!(chunk(Some(0), Some(1), 0), bad_len(0));
+        assert_eq!(
+            chunk(Some(0), Some(1), MAX_CHUNK_LEN + 1),
+            bad_len(MAX_CHUNK_LEN as u32 + 1)
+        );
+        let upload = |h: Header<'_>| feed(&mut Decoder::new(), &raw_bytes(&h, &[]));
+        let base = Header {
+            t: kind::UPLOAD,
+            seq: 2,
+            slot: Some(1),
+            ..Header::default()
+        };
+        assert_eq!(upload(base.clone()), std::vec![Ev::Msg(2, kind::UPLOAD, 0)]);
+        assert_eq!(
+            upload(Header {
+                slot: None,
+                ..base.clone()
+            }),
+            field("slot")
+        );
+        let partial = Header {
+            id: Some(1),
+            ver: Some(2),
+            ..base.clone()
+        };
+        assert_eq!(upload(partial), field("id/ver/total/held"));
+        let over = Header {
+            id: Some(1),
+            ver: Some(2),
+            total: Some(10),
+            held: Some(11),
+            ..base
+        };
+        assert_eq!(upload(over), field("held"));
+        // A commit or an upload request carries nothing.
+        let commit = Header {
+            t: kind::COMMIT,
+            seq: 3,
+            len: Some(4),
+            ..Header::default()
+        };
+        assert_eq!(
+            feed(&mut Decoder::new(), &raw_bytes(&commit, &[0; 4])),
+            std::vec![Ev::Err(DecodeError::BadLength {
+                len: 4,
+                expected: 0
+            })]
+        );
     }
 
     #[test]

@@ -32,6 +32,9 @@ pub use stack::Stack;
 
 /// The weight blob the firmware serves with, checked on the host at build time.
 pub static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));
+/// The public key a model update's signature must verify against (`EPSSN_UPDATE_KEY` at
+/// build time, `build.rs`).
+pub const UPDATE_KEY: [u8; 32] = *include_bytes!(concat!(env!("OUT_DIR"), "/update_key.bin"));
 static SELFTEST_REFERENCE: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/selftest_reference.bin"));
 static SELFTEST_SOURCE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_source.bin"));

@@ -13,3 +13,4 @@ pub mod quantise;
 pub mod run;
 pub mod sil;
 pub mod simulate;
+pub mod update;

@@ -193,6 +193,9 @@ pub fn build_firmware() -> Result<PathBuf> {
     build_firmware_with(Target::M7, None)
 }
 
+/// The test key pair's public half, from the repository root (`update/test-key/`).
+pub const TEST_UPDATE_KEY: &str = "update/test-key/public";
+
 /// [`build_firmware`] for `target_core`'s firmware crate (`boards/mps3-an547` for the M55, in
 /// its own `target/`, per spec the same way), with a cargo feature of it if given (a test
 /// build, in a target directory of its own, `<target>/<feature>`, so it never replaces the
@@ -206,6 +209,12 @@ pub fn build_firmware_with(target_core: Target, feature: Option<&str>) -> Result
     if let Some(f) = feature {
         target = target.join(f);
         cargo.args(["--features", f]);
+    }
+    // The update key the firmware embeds: the caller's `EPSSN_UPDATE_KEY` (the key the
+    // images it pushes are signed with), else the test key, named here explicitly (the
+    // firmware's release build takes no key by default).
+    if std::env::var_os("EPSSN_UPDATE_KEY").is_none() {
+        cargo.env("EPSSN_UPDATE_KEY", TEST_UPDATE_KEY);
     }
     let status = cargo
         .arg("--target-dir")
