@@ -10,11 +10,10 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use epssn::attitude::Attitude;
 use epssn::config;
-use epssn_aris::aris::ArisReader;
-use epssn_aris::polar;
 use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
 use epssn_mcap::sonar::{header, ns, write_sonar_frame};
 use epssn_mcap::Bag;
+use epssn_ros2::{Recording, SonarFrame};
 
 use crate::pairing::CandidateReport;
 
@@ -72,12 +71,12 @@ pub struct RunMessages<'a> {
 }
 
 /// Writes the run's MCAP file.
-pub fn write(path: &Path, reader: &ArisReader, run: &RunMessages) -> Result<()> {
+pub fn write(path: &Path, reader: &Recording, run: &RunMessages) -> Result<()> {
     let mut bag = Bag::create(path)?;
     let mut last_us = 0;
     for f in 0..reader.frame_count() {
         let frame = reader.frame(f)?;
-        let t = frame.header.frame_time_us;
+        let t = frame.time_us;
         last_us = last_us.max(t);
         write_frame(&mut bag, f, &frame, run).with_context(|| format!("frame {f}"))?;
     }
@@ -100,15 +99,10 @@ pub fn write(path: &Path, reader: &ArisReader, run: &RunMessages) -> Result<()> 
 
 /// One frame's messages: its images and transform, and the pair checks and depth maps whose
 /// reference it is.
-fn write_frame(
-    bag: &mut Bag,
-    f: usize,
-    frame: &epssn_aris::aris::Frame,
-    run: &RunMessages,
-) -> Result<()> {
-    let t = frame.header.frame_time_us;
+fn write_frame(bag: &mut Bag, f: usize, frame: &SonarFrame, run: &RunMessages) -> Result<()> {
+    let t = frame.time_us;
     let time = ns(t)?;
-    let polar = polar::frame_to_polar(frame)?;
+    let polar = frame.to_polar()?;
     let placed = run.attitudes.get(f).copied().flatten().map(|a| {
         let position = run.positions.get(&f).copied().unwrap_or([0.0; 3]);
         (a, position)
