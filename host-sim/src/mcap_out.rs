@@ -12,6 +12,7 @@ use epssn::attitude::Attitude;
 use epssn::config;
 use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
 use epssn_mcap::sonar::{header, ns, write_sonar_frame};
+use epssn_mcap::sonar_image::{image_frame_tf, sonar_image, SONAR_IMAGE_TOPIC, TF_STATIC_TOPIC};
 use epssn_mcap::Bag;
 use epssn_ros2::{Recording, SonarFrame};
 
@@ -22,6 +23,9 @@ pub use epssn_mcap::sonar::{sonar_points, SONAR_FRAME, WORLD_FRAME};
 /// The topics, in one place for the docs and the tests.
 pub mod topic {
     pub use epssn_mcap::sonar::{FAN_TOPIC as FAN, POLAR_TOPIC as POLAR, TF_TOPIC as TF};
+    pub use epssn_mcap::sonar_image::{
+        SONAR_IMAGE_TOPIC as SONAR_IMAGE, TF_STATIC_TOPIC as TF_STATIC,
+    };
     /// The pose gate's verdict on each candidate pair, JSON.
     pub const PAIR_CHECK: &str = "/pairing/check";
     /// Depth maps, 32FC1 metres, elevation rows × azimuth columns.
@@ -77,6 +81,10 @@ pub fn write(path: &Path, reader: &Recording, run: &RunMessages) -> Result<()> {
     for f in 0..reader.frame_count() {
         let frame = reader.frame(f)?;
         let t = frame.time_us;
+        if f == 0 {
+            // The ProjectedSonarImage's own axes in the sonar frame, once.
+            bag.write(TF_STATIC_TOPIC, ns(t)?, &image_frame_tf(t)?)?;
+        }
         last_us = last_us.max(t);
         write_frame(&mut bag, f, &frame, run).with_context(|| format!("frame {f}"))?;
     }
@@ -108,6 +116,7 @@ fn write_frame(bag: &mut Bag, f: usize, frame: &SonarFrame, run: &RunMessages) -
         (a, position)
     });
     write_sonar_frame(bag, t, &polar, placed.as_ref().map(|(a, p)| (a, *p)))?;
+    bag.write(SONAR_IMAGE_TOPIC, time, &sonar_image(t, &polar)?)?;
     for c in run
         .candidates
         .iter()

@@ -35,7 +35,7 @@ def main():
         assert all(b > a for a, b in zip(az, az[1:])), "azimuths not ascending to port"
         for d in msg.beam_directions:
             assert abs(math.hypot(d.x, d.y, d.z) - 1) < 1e-9
-        assert msg.ping_info.sound_speed > 0
+        assert len(msg.ping_info.tx_beamwidths) == beams
     print(f"{len(images)} ProjectedSonarImage on {images[0][0]}: {bins} ranges "
           f"{msg.ranges[0]:.4f}-{msg.ranges[-1]:.4f} m, {beams} beams "
           f"{math.degrees(az[0]):.2f}..{math.degrees(az[-1]):.2f} deg")
