@@ -3,7 +3,8 @@
 //! `marine_acoustic_msgs/ProjectedSonarImage` and `tf2_msgs/TFMessage` (`msgs`), the transform
 //! tree (`tf`), a ping as a native frame (`ping`, `frame`) and the check that its fan covers
 //! the model's grid (`fit`), a bag's pings with their attitudes and rolls (`bag`), and the
-//! recording that is an ARIS file or a bag behind one type (`recording`).
+//! recording that is an ARIS file or a bag behind one type (`recording`). `encode` writes
+//! small bags (one chunk, any compression) for the tests and the fuzz target's seeds.
 
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -11,6 +12,7 @@
 pub mod bag;
 pub mod cdr;
 pub mod decode;
+pub mod encode;
 pub mod fit;
 pub mod frame;
 pub mod header;
