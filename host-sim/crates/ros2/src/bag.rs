@@ -20,7 +20,9 @@ use epssn::attitude::Attitude;
 
 use crate::decode::{self, Contents};
 use crate::frame::SonarFrame;
-use crate::msgs::{decode_sonar_image, decode_tf_message, PROJECTED_SONAR_IMAGE, TF_MESSAGE};
+use crate::msgs::{
+    decode_sonar_image, decode_tf_message, ProjectedSonarImage, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
+};
 use crate::ping::frame_of;
 use crate::tf::{mul, Quat, TfTree};
 
@@ -129,8 +131,8 @@ impl BagRecording {
         self.messages.len()
     }
 
-    /// Ping `i` as a native frame.
-    pub fn frame(&self, i: usize) -> Result<SonarFrame> {
+    /// Ping `i`'s message, decoded.
+    pub fn message(&self, i: usize) -> Result<ProjectedSonarImage> {
         let Some(data) = self.messages.get(i) else {
             bail!(
                 "ping {i}: the bag holds {} on {}",
@@ -138,8 +140,12 @@ impl BagRecording {
                 self.topic
             );
         };
-        let msg = decode_sonar_image(data).with_context(|| format!("{} ping {i}", self.topic))?;
-        frame_of(&msg, i).with_context(|| format!("{} ping {i}", self.topic))
+        decode_sonar_image(data).with_context(|| format!("{} ping {i}", self.topic))
+    }
+
+    /// Ping `i` as a native frame.
+    pub fn frame(&self, i: usize) -> Result<SonarFrame> {
+        frame_of(&self.message(i)?, i).with_context(|| format!("{} ping {i}", self.topic))
     }
 
     /// Ping `i`'s attitude (docs/POSE.md's convention).

@@ -10,7 +10,7 @@ use crate::record::{self, Channel, Chunk, Message, Record, Schema};
 use crate::McapError;
 
 /// Largest chunk this reader decompresses, bytes: a corrupt size must not allocate the heap away.
-pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+pub const MAX_CHUNK_BYTES: u64 = 1 << 28;
 
 /// Every schema, channel and message of a file (messages in file order).
 #[derive(Clone, Debug, Default)]

@@ -3,7 +3,8 @@
 //! `marine_acoustic_msgs/ProjectedSonarImage` and `tf2_msgs/TFMessage` (`msgs`), the transform
 //! tree (`tf`), a ping as a native frame (`ping`, `frame`) and the check that its fan covers
 //! the model's grid (`fit`), a bag's pings with their attitudes and rolls (`bag`), and the
-//! recording that is an ARIS file or a bag behind one type (`recording`). `encode` writes
+//! recording that is an ARIS file or a bag behind one type (`recording`), and `host-sim
+//! inspect` of a bag (`inspect`). `encode` writes
 //! small bags (one chunk, any compression) for the tests and the fuzz target's seeds.
 
 #![deny(missing_docs)]
@@ -16,6 +17,7 @@ pub mod encode;
 pub mod fit;
 pub mod frame;
 pub mod header;
+pub mod inspect;
 pub mod msgs;
 pub mod ping;
 pub mod record;
