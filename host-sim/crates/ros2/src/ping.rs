@@ -51,7 +51,7 @@ pub fn to_u8(image: &SonarImageData) -> Result<Vec<u8>> {
         );
     };
     ensure!(
-        image.data.len() % size == 0,
+        image.data.len().is_multiple_of(size),
         "image data of {} bytes is not whole elements of {size} bytes",
         image.data.len()
     );

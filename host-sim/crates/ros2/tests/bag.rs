@@ -122,7 +122,7 @@ fn every_compression_reads_back_the_aris_geometry_exactly_with_rolls_from_tf() {
         let rec = BagRecording::from_bytes(&bytes, None).unwrap();
         assert_eq!((rec.frame_count(), rec.topic.as_str()), (3, "/sonar"));
         assert!(rec.warnings().is_empty(), "{:?}", rec.warnings());
-        for k in 0..3 {
+        for (k, want_roll) in rolls.iter().enumerate() {
             let f = rec.frame(k).unwrap();
             // The table's exact angles and docs/ARIS.md's ranges, not the float32 ones.
             assert_eq!(f.beam_centres_rad, az);
@@ -134,7 +134,7 @@ fn every_compression_reads_back_the_aris_geometry_exactly_with_rolls_from_tf() {
             assert_eq!(f.time_us, (T0 as u64 + k as u64 * 1000) / 1000);
             let roll = rec.roll_deg(k).unwrap();
             assert!(
-                (roll - rolls[k]).abs() < 1e-4,
+                (roll - want_roll).abs() < 1e-4,
                 "{compression:?} ping {k}: roll {roll}"
             );
             assert!(rec.attitude(k).is_some());
@@ -162,7 +162,7 @@ fn port_first_beams_are_turned_round_and_a_ping_without_tf_has_no_roll() {
     let f = rec.frame(0).unwrap();
     assert!(f.beam_centres_rad.windows(2).all(|w| w[1] > w[0]));
     // Beam 0 is now the message's last (right-most) beam.
-    assert_eq!(f.data[128 + 0], 127);
+    assert_eq!(f.data[128], 127);
     assert_eq!(f.data[128 + 127], 0);
     assert_eq!((rec.roll_deg(0), rec.attitude(0)), (None, None));
     assert!(
