@@ -36,6 +36,9 @@ pub struct PairingOptions {
     pub pings_per_view: Option<u32>,
     /// The ProjectedSonarImage topic of a bag (default: its only one).
     pub topic: Option<String>,
+    /// Each frame's pose (`--poses` of `run` and `label`): a bag's pings without a transform
+    /// in /tf take their attitude, and so their roll, from it.
+    pub poses: Option<PathBuf>,
 }
 
 impl PairingOptions {
@@ -224,8 +227,18 @@ pub fn pair_recording(
         topic: args.topic.clone(),
     };
     let needed = if args.pairs.is_empty() { views } else { 2 };
-    let reader = open_recording(recording, &options, needed)?;
+    let mut reader = open_recording(recording, &options, needed)?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
+    if let (Some(path), Recording::Bag(_)) = (&args.poses, &reader) {
+        let rows = epssn_sim::poses::load(path, reader.frame_count())?;
+        let placed = reader.fill_attitudes(|i| Some(rows.get(&i)?.site_from_sonar().rotation));
+        if placed > 0 {
+            warnings.push(format!(
+                "{placed} ping(s) without a transform take their attitude from {}",
+                path.display()
+            ));
+        }
+    }
     let frames = FrameViews::of(args, &reader, weights_dir, recording, &mut warnings)?;
     let (groups, candidates) = if args.pairs.is_empty() {
         pair_by_pose(&frames, views, &mut warnings)

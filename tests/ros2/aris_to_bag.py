@@ -1,7 +1,7 @@
 """An ARIS recording written as a ROS 2 bag by an independent writer (PyPI mcap +
 mcap-ros2-support), for the check that a bag gives the depth maps the .aris file gives.
 
-    python aris_to_bag.py IN.aris OUT.mcap [--compression zstd|lz4|none] [--chunk-size N]
+    python aris_to_bag.py IN.aris OUT.mcap [--compression zstd|lz4|none] [--chunk-size N] [--no-tf]
 
 Reads the ARIS file by docs/ARIS.md alone (offsets, range of each sample, beam tables) and
 writes, per frame:
@@ -146,6 +146,7 @@ def main():
     p.add_argument("out")
     p.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd")
     p.add_argument("--chunk-size", type=int, default=1024 * 1024)
+    p.add_argument("--no-tf", action="store_true", help="no /tf: attitudes from --poses")
     a = p.parse_args()
     beams, samples, frames = read_aris(a.aris)
     compression = {
@@ -163,7 +164,7 @@ def main():
         for header, data in frames:
             t = header["time_us"] * 1000
             q = attitude(header)
-            if q is not None:
+            if q is not None and not a.no_tf:
                 msg = {"transforms": [msgdefs.transform(t, "map", "sonar", q)]}
                 w.write_message("/tf", tf, msg, log_time=t)
             w.write_message(

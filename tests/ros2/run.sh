@@ -6,6 +6,7 @@
 #      zstd, lz4 and uncompressed chunks): `run` on each bag gives the depth maps `run` gives
 #      on the .aris file bit for bit (digests of every /depth/* message of `--mcap`), and the
 #      same pairs, pings and scores (summary.json);
+#      a bag without /tf, its attitudes from --poses, gives them too;
 #   3. a 130-degree, 512-beam bag whose ranges start at 5 m is refused: non-zero exit, the
 #      range window named, no panic, nothing written;
 #   4. `run --mcap`'s sonar frames decode as ProjectedSonarImage with that reader.
@@ -69,6 +70,21 @@ check_recording() { # name, recording folder, frames, extra run arguments...
 }
 
 check_recording demo data/demo 12
+
+# A bag without /tf takes its attitudes from --poses (here each frame's rotator roll, level).
+"$py" tests/ros2/aris_to_bag.py data/demo/recording.aris "$tmp/notf.mcap" --no-tf >/dev/null
+"$py" - "$tmp/notf.csv" <<'PY'
+import sys
+rows = ["frame,x_m,y_m,z_m,roll_deg,pitch_deg,yaw_deg"]
+rows += [f"{k},0,0,0,{7.0 * (k % 2)},0,0" for k in range(12)]
+open(sys.argv[1], "w").write("\n".join(rows) + "\n")
+PY
+"$hs" run --recording "$tmp/notf.mcap" --poses "$tmp/notf.csv" --gt data/demo/gt --json \
+    --out "$tmp/notf" --mcap "$tmp/notf-run.mcap" >/dev/null
+"$py" tests/ros2/read_run_bag.py "$tmp/notf-run.mcap" 12 | tail -n +2 >"$tmp/notf.depth"
+cmp -s "$tmp/demo-aris.depth" "$tmp/notf.depth" || { echo "the bag with --poses gives other depth maps"; exit 1; }
+grep -q "take their attitude from" "$tmp/notf/summary.json" || { echo "no --poses warning"; exit 1; }
+echo "demo: a bag without /tf, attitudes from --poses, gives the same depth maps"
 check_recording demo-3view-looks4 data/demo-3view-looks4 36 --weights weights/general-3view-looks4
 
 # A sonar whose fan does not cover the model's grid: refused by name, nothing written.

@@ -39,6 +39,8 @@ impl From<PairingArgs> for PairingOptions {
             pairs: a.pairs,
             pings_per_view: a.pings_per_view,
             topic: a.topic,
+            // `run` and `label` give their own --poses.
+            poses: None,
         }
     }
 }

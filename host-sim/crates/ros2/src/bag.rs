@@ -4,7 +4,8 @@
 //! - **Topic**: the one given, else the only ProjectedSonarImage topic of the bag (an error
 //!   names them when there are none or several).
 //! - **Attitude** of a ping: the rotation of its image's `frame_id` in the root frame of its
-//!   `/tf` (and `/tf_static`) tree at the ping's stamp ([`crate::tf`]), turned from the
+//!   `/tf` (and `/tf_static`) tree at the ping's stamp ([`crate::tf`]; a chain of static
+//!   transforms alone is a mount, no attitude), turned from the
 //!   message's axes (Z forward, X up, Y starboard) into the sonar frame of docs/POSE.md
 //!   (x forward, y port, z up).
 //! - **Roll** of a ping: the twist about its forward axis (right-handed, ARIS SonarRoll's
@@ -71,21 +72,21 @@ impl BagRecording {
 
     /// Reads a bag held in memory.
     pub fn from_bytes(bytes: &[u8], topic: Option<&str>) -> Result<Self> {
-        let contents = decode::read(bytes, &|s| is_sonar_image(s) || is_tf(s))?;
+        let mut contents = decode::read(bytes, &|s| is_sonar_image(s) || is_tf(s))?;
         let (channel, topic) = choose_topic(&contents, topic)?;
         let mut pings: Vec<(u64, Vec<u8>)> = Vec::new();
         let mut tree = TfTree::default();
-        for m in contents.messages {
+        for m in std::mem::take(&mut contents.messages) {
             if m.channel_id == channel {
                 pings.push((m.log_time, m.data));
-            } else if contents
+            } else if let Some(c) = contents
                 .channels
                 .get(&m.channel_id)
-                .is_some_and(|c| is_tf(contents.schemas.get(&c.schema_id).map_or("", |s| &s.name)))
+                .filter(|c| is_tf(contents.schema_name(c)))
             {
                 let transforms = decode_tf_message(&m.data)
                     .with_context(|| format!("a TFMessage at log time {} ns", m.log_time))?;
-                tree.add(&transforms);
+                tree.add(&transforms, c.topic == "/tf_static");
             }
         }
         // Log time order; the sort is stable, so pings logged at one time keep file order.
@@ -146,6 +147,22 @@ impl BagRecording {
     /// Ping `i` as a native frame.
     pub fn frame(&self, i: usize) -> Result<SonarFrame> {
         frame_of(&self.message(i)?, i).with_context(|| format!("{} ping {i}", self.topic))
+    }
+
+    /// Gives the pings without a transform in /tf the attitude `of(i)` says (`--poses`), and
+    /// their roll from it; returns how many it placed.
+    pub fn fill_attitudes(&mut self, of: impl Fn(usize) -> Option<Attitude>) -> usize {
+        let mut placed = 0;
+        for (i, a) in self.attitudes.iter_mut().enumerate() {
+            if a.is_none() {
+                if let Some(given) = of(i) {
+                    *a = Some(given);
+                    self.rolls[i] = Some(f64::from(Attitude::IDENTITY.relative(&given).roll_deg));
+                    placed += 1;
+                }
+            }
+        }
+        placed
     }
 
     /// Ping `i`'s attitude (docs/POSE.md's convention).

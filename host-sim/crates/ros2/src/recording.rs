@@ -87,6 +87,19 @@ impl Recording {
         }
     }
 
+    /// A bag's pings without a transform take their attitude (the sonar frame → the fixed
+    /// frame, as a rotation matrix) from `poses`, e.g. `--poses`; an ARIS file's come from its
+    /// headers and are left alone. Returns how many pings it placed.
+    pub fn fill_attitudes(&mut self, poses: impl Fn(usize) -> Option<[[f64; 3]; 3]>) -> usize {
+        match self {
+            Self::Aris(_) => 0,
+            Self::Bag(b) => b.fill_attitudes(|i| {
+                let [x, y, z, w] = crate::tf::quat_of_matrix(&poses(i)?);
+                Attitude::from_array([w as f32, x as f32, y as f32, z as f32])
+            }),
+        }
+    }
+
     /// Frame `i`'s attitude (docs/POSE.md).
     pub fn attitude(&self, i: usize) -> Option<Attitude> {
         match self {
