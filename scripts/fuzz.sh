@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of every parser (fuzz/: cargo-fuzz, libFuzzer): the link decoder,
 # the weight blob, the spec JSON, the beam tables, the ARIS reader, the frame pairing, the
-# site mesh readers (STL, OBJ, PLY) and the poses file of `label` (CSV).
+# site mesh readers (STL, OBJ, PLY), the poses file of `label` (CSV) and the ROS 2 bag reader
+# (MCAP chunks stored, LZ4 and zstd; CDR of ProjectedSonarImage and TFMessage).
 #   bash scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]
 # Installs what it needs (a nightly toolchain, cargo-fuzz), seeds each corpus, runs each target
 # for SECONDS (default 30) and fails on the first crash; crashes land in fuzz/artifacts/<target>/
@@ -15,14 +16,16 @@ cd "$(dirname "$0")/.."
 seconds=${1:-30}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(link_decoder link_update model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply poses_csv)
+[ ${#targets[@]} -gt 0 ] || targets=(link_decoder link_update model_from_blob model_from_blob_fixed spec_json beam_table aris_reader pairing mesh_stl mesh_obj mesh_ply poses_csv ros2_bag)
 
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install --locked cargo-fuzz
 
 corpus=fuzz/corpus
-mkdir -p "$corpus"/{link_decoder,link_update,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply,poses_csv}
+mkdir -p "$corpus"/{link_decoder,link_update,model_from_blob,model_from_blob_fixed,spec_json,beam_table,aris_reader,pairing,mesh_stl,mesh_obj,mesh_ply,poses_csv,ros2_bag}
 cargo run -q --example link_seeds -- "$corpus/link_decoder"
+# Small bags of a ping and a transform, whole (every compression) and as the target's split form.
+cargo run -q -p epssn-ros2 --example fuzz_seeds -- "$corpus/ros2_bag"
 cp "$(awk '$1 == "epssn-s.json" { print $2 }' weights/FIRMWARE_WEIGHTS)" "$corpus/model_from_blob/shipped.q8.bin"
 cp "$corpus/model_from_blob/shipped.q8.bin" "$corpus/model_from_blob_fixed/shipped.q8.bin"
 cp weights/epssn-s.json "$corpus/spec_json/epssn-s.json"

@@ -126,6 +126,12 @@ EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/ep
     --target m55 --frames 3 --faults 0 --json
 echo "(EPSSN-P step $((SECONDS - p_start)) s)"
 
+step "ROS 2 bags (docs/ROS2.md): ARIS 3000 demos as bags give the .aris depth maps bit for bit"
+# A venv under target/ with PyPI mcap and mcap-ros2-support (seconds): bags from the independent
+# writer read by run (zstd, LZ4, stored chunks), a 130-degree bag from 5 m refused, run --mcap's
+# ProjectedSonarImage decoded by the independent reader.
+bash tests/ros2/run.sh
+
 step "PyTorch trainer (training/): float agreement with the f64 reference, data-parallel fit"
 # A venv under target/ with torch (the README's main job needs none); predict against
 # host-sim eval --save-depth on fresh samples, max |delta| <= 0.1 mm, EPSSN-S 2 and 3 views and

@@ -17,7 +17,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Summarise an ARIS (.aris, DDF_05) recording: geometry, frames, rolls, warnings.
+    /// Summarise an ARIS (.aris, DDF_05) recording, or a ROS 2 bag's sonar topic: geometry,
+    /// frames, rolls, warnings.
     Inspect(cmd::inspect::InspectArgs),
     /// Quantise float weights into the int8 blob the library and firmware run.
     Quantise(cmd::quantise::QuantiseArgs),
@@ -56,7 +57,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let stdout = std::io::stdout();
     let result = match cli.command {
-        Command::Inspect(args) => epssn_aris::inspect::run(&args.into(), &mut stdout.lock()),
+        Command::Inspect(args) => args.run(&mut stdout.lock()),
         Command::Quantise(args) => epssn_quant::quantise::run(&args.into(), &mut stdout.lock()),
         Command::Qdiag(args) => epssn_quant::qdiag::run(&args.into()),
         Command::Run(args) => host_sim::run::run(&args.into(), &mut stdout.lock()),

@@ -10,11 +10,11 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use epssn::attitude::Attitude;
 use epssn::config;
-use epssn_aris::aris::ArisReader;
-use epssn_aris::polar;
 use epssn_mcap::msgs::{Image, PointCloud2, SonarPoint, StringMsg};
 use epssn_mcap::sonar::{header, ns, write_sonar_frame};
+use epssn_mcap::sonar_image::{image_frame_tf, sonar_image, SONAR_IMAGE_TOPIC, TF_STATIC_TOPIC};
 use epssn_mcap::Bag;
+use epssn_ros2::{Recording, SonarFrame};
 
 use crate::pairing::CandidateReport;
 
@@ -23,6 +23,9 @@ pub use epssn_mcap::sonar::{sonar_points, SONAR_FRAME, WORLD_FRAME};
 /// The topics, in one place for the docs and the tests.
 pub mod topic {
     pub use epssn_mcap::sonar::{FAN_TOPIC as FAN, POLAR_TOPIC as POLAR, TF_TOPIC as TF};
+    pub use epssn_mcap::sonar_image::{
+        SONAR_IMAGE_TOPIC as SONAR_IMAGE, TF_STATIC_TOPIC as TF_STATIC,
+    };
     /// The pose gate's verdict on each candidate pair, JSON.
     pub const PAIR_CHECK: &str = "/pairing/check";
     /// Depth maps, 32FC1 metres, elevation rows × azimuth columns.
@@ -72,12 +75,16 @@ pub struct RunMessages<'a> {
 }
 
 /// Writes the run's MCAP file.
-pub fn write(path: &Path, reader: &ArisReader, run: &RunMessages) -> Result<()> {
+pub fn write(path: &Path, reader: &Recording, run: &RunMessages) -> Result<()> {
     let mut bag = Bag::create(path)?;
     let mut last_us = 0;
     for f in 0..reader.frame_count() {
         let frame = reader.frame(f)?;
-        let t = frame.header.frame_time_us;
+        let t = frame.time_us;
+        if f == 0 {
+            // The ProjectedSonarImage's own axes in the sonar frame, once.
+            bag.write(TF_STATIC_TOPIC, ns(t)?, &image_frame_tf(t)?)?;
+        }
         last_us = last_us.max(t);
         write_frame(&mut bag, f, &frame, run).with_context(|| format!("frame {f}"))?;
     }
@@ -100,20 +107,16 @@ pub fn write(path: &Path, reader: &ArisReader, run: &RunMessages) -> Result<()> 
 
 /// One frame's messages: its images and transform, and the pair checks and depth maps whose
 /// reference it is.
-fn write_frame(
-    bag: &mut Bag,
-    f: usize,
-    frame: &epssn_aris::aris::Frame,
-    run: &RunMessages,
-) -> Result<()> {
-    let t = frame.header.frame_time_us;
+fn write_frame(bag: &mut Bag, f: usize, frame: &SonarFrame, run: &RunMessages) -> Result<()> {
+    let t = frame.time_us;
     let time = ns(t)?;
-    let polar = polar::frame_to_polar(frame)?;
+    let polar = frame.to_polar()?;
     let placed = run.attitudes.get(f).copied().flatten().map(|a| {
         let position = run.positions.get(&f).copied().unwrap_or([0.0; 3]);
         (a, position)
     });
     write_sonar_frame(bag, t, &polar, placed.as_ref().map(|(a, p)| (a, *p)))?;
+    bag.write(SONAR_IMAGE_TOPIC, time, &sonar_image(t, &polar)?)?;
     for c in run
         .candidates
         .iter()

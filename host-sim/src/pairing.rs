@@ -14,9 +14,8 @@ use epssn::pairing::{check_pair, CachedFrame};
 use epssn::ping_average;
 use serde::Serialize;
 
-use epssn_aris::aris::ArisReader;
-use epssn_aris::polar;
 use epssn_reference::weights;
+use epssn_ros2::{OpenOptions, Recording};
 
 /// What decides the depth maps a recording gives: `run` and `label` share it, so `label`
 /// labels exactly the reference views `run` forms.
@@ -35,6 +34,11 @@ pub struct PairingOptions {
     /// frames left over are skipped with a warning. Default: the pings per view the weights
     /// were trained on (their manifest's `speckle_looks`), else 1.
     pub pings_per_view: Option<u32>,
+    /// The ProjectedSonarImage topic of a bag (default: its only one).
+    pub topic: Option<String>,
+    /// Each frame's pose (`--poses` of `run` and `label`): a bag's pings without a transform
+    /// in /tf take their attitude, and so their roll, from it.
+    pub poses: Option<PathBuf>,
 }
 
 impl PairingOptions {
@@ -120,16 +124,12 @@ pub fn gate(
     }
 }
 
-pub(crate) fn frame_attitude(reader: &ArisReader, i: usize) -> Option<Attitude> {
-    Attitude::from_array(reader.frame_header(i).ok()?.attitude()?)
+pub(crate) fn frame_attitude(reader: &Recording, i: usize) -> Option<Attitude> {
+    reader.attitude(i)
 }
 
-fn frame_roll(reader: &ArisReader, i: usize) -> Option<f64> {
-    let h = reader.frame_header(i).ok()?;
-    [h.sonar_roll_deg, h.roll_abs_position_deg]
-        .into_iter()
-        .find(|r| r.is_finite())
-        .map(|r| r as f64)
+fn frame_roll(reader: &Recording, i: usize) -> Option<f64> {
+    reader.roll_deg(i)
 }
 
 /// Pairs frames by roll: each frame with a later frame `step` (and `2·step` for 3 views) more
@@ -197,8 +197,8 @@ pub fn blob_views(weights_dir: &Path) -> Result<usize> {
 
 /// A recording opened and grouped as `run` groups it, before any depth is computed.
 pub struct Pairing {
-    /// The recording.
-    pub reader: ArisReader,
+    /// The recording (an ARIS file or a ROS 2 bag).
+    pub reader: Recording,
     pub(crate) frames: FrameViews,
     /// The groups whose depth maps are computed, reference frame first.
     pub groups: Vec<Vec<usize>>,
@@ -223,8 +223,22 @@ pub fn pair_recording(
         "--views must be 2..={}",
         config::MAX_VIEWS
     );
-    let reader = open_recording(recording, if args.pairs.is_empty() { views } else { 2 })?;
+    let options = OpenOptions {
+        topic: args.topic.clone(),
+    };
+    let needed = if args.pairs.is_empty() { views } else { 2 };
+    let mut reader = open_recording(recording, &options, needed)?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
+    if let (Some(path), Recording::Bag(_)) = (&args.poses, &reader) {
+        let rows = epssn_sim::poses::load(path, reader.frame_count())?;
+        let placed = reader.fill_attitudes(|i| Some(rows.get(&i)?.site_from_sonar().rotation));
+        if placed > 0 {
+            warnings.push(format!(
+                "{placed} ping(s) without a transform take their attitude from {}",
+                path.display()
+            ));
+        }
+    }
     let frames = FrameViews::of(args, &reader, weights_dir, recording, &mut warnings)?;
     let (groups, candidates) = if args.pairs.is_empty() {
         pair_by_pose(&frames, views, &mut warnings)
@@ -247,10 +261,10 @@ pub fn pair_recording(
 }
 
 /// Opens a recording that fits the model and holds at least `needed` frames.
-fn open_recording(recording: &Path, needed: usize) -> Result<ArisReader> {
-    let reader =
-        ArisReader::open(recording).with_context(|| format!("opening {}", recording.display()))?;
-    if let Some(why) = polar::geometry_mismatch(&reader)? {
+fn open_recording(recording: &Path, options: &OpenOptions, needed: usize) -> Result<Recording> {
+    let reader = Recording::open(recording, options)
+        .with_context(|| format!("opening {}", recording.display()))?;
+    if let Some(why) = reader.geometry_mismatch()? {
         bail!(
             "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
              wrong, so nothing was computed.",
@@ -286,7 +300,7 @@ pub(crate) struct FrameViews {
 impl FrameViews {
     fn of(
         args: &PairingOptions,
-        reader: &ArisReader,
+        reader: &Recording,
         weights_dir: &Path,
         recording: &Path,
         warnings: &mut Vec<String>,
@@ -386,7 +400,7 @@ fn pair_by_pose(
 /// The pairs given with `--pair`, checked against the recording.
 fn given_pairs(
     args: &PairingOptions,
-    reader: &ArisReader,
+    reader: &Recording,
     views: usize,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<Vec<usize>>> {

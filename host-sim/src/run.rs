@@ -24,9 +24,10 @@ use crate::pairing::{
 };
 use crate::sweep::{self, CloudFrame};
 use epssn_aris::aris::ArisReader;
-use epssn_aris::{npy, polar};
+use epssn_aris::npy;
 use epssn_mcap::msgs::SonarPoint;
 use epssn_reference::{floatref, reference_model, weights};
+use epssn_ros2::Recording;
 use epssn_sim::dataset::demo_dir;
 use epssn_sim::metrics::{self, Accuracy, Metrics};
 use epssn_sim::poses::SitePose;
@@ -301,7 +302,7 @@ struct RunOutputs<'a> {
 /// `--mcap`: the run as ROS 2 messages.
 fn write_mcap(
     path: &Path,
-    reader: &ArisReader,
+    reader: &Recording,
     summary: &Summary,
     summary_json: &str,
     o: &RunOutputs,
@@ -386,7 +387,7 @@ fn world_cloud(
 /// The polar image of every frame the groups use, each computed once (its pings averaged).
 fn polar_images(
     args: &RunOptions,
-    reader: &ArisReader,
+    reader: &Recording,
     frames: &FrameViews,
     groups: &[Vec<usize>],
 ) -> Result<BTreeMap<usize, Vec<u8>>> {
@@ -399,8 +400,8 @@ fn polar_images(
     let mut images = BTreeMap::new();
     for &f in groups.iter().flatten() {
         if let std::collections::btree_map::Entry::Vacant(e) = images.entry(f) {
-            let pings = polar::average_pings(reader, &frames.pings_of(f), &table)?;
-            e.insert(polar::frame_to_polar(&pings)?);
+            let pings = reader.average_pings(&frames.pings_of(f), &table)?;
+            e.insert(pings.to_polar()?);
         }
     }
     Ok(images)

@@ -291,6 +291,25 @@ fn demo_run_mcap_decodes_to_the_frames_and_the_json() {
         let polar = epssn_aris::polar::frame_to_polar(&reader.frame(i).unwrap()).unwrap();
         assert_eq!(img.data, polar, "frame {i}");
     }
+    // The same polar images as ProjectedSonarImage (read back by the bag reader `run
+    // --recording` uses): the model's columns at the spec's azimuths, its bins' centres.
+    assert_eq!(m["/tf_static"].len(), 1);
+    let sonar_images = &m["/sonar/image"];
+    assert_eq!(sonar_images.len(), n);
+    for (i, ((t, data), (_, polar))) in sonar_images.iter().zip(&m["/sonar/polar"]).enumerate() {
+        let msg = epssn_ros2::msgs::decode_sonar_image(data).unwrap();
+        assert_eq!(msg.header.stamp_ns as u64, *t);
+        assert_eq!(msg.header.frame_id, "sonar_image");
+        assert_eq!(msg.image.data, image(polar).data, "frame {i}");
+        assert_eq!(msg.ranges.len(), INPUT_RANGE_BINS);
+        let az = epssn_ros2::ping::azimuths(&msg.beam_directions).unwrap();
+        for (a, want) in az.iter().zip(epssn::config::INPUT_COLUMN_AZIMUTH_RAD) {
+            assert!(
+                (a - want).abs() < 1e-12,
+                "frame {i}: column at {a}, {want} expected"
+            );
+        }
+    }
     for (t, data) in &m["/sonar/fan"] {
         let img = image(data);
         assert_eq!((img.stamp, img.encoding.as_str()), (*t, "mono8"));

@@ -9,7 +9,8 @@ use super::simulate::SceneKindArg;
 /// `host-sim fit-sensor`.
 #[derive(clap::Args, Debug)]
 pub struct FitSensorArgs {
-    /// The recording (.aris) whose image statistics the simulator is fitted to.
+    /// The recording (.aris, or a ROS 2 bag of ProjectedSonarImage) whose image statistics the
+    /// simulator is fitted to.
     #[arg(long)]
     pub recording: PathBuf,
     /// Write the fitted SonarSimParams here (JSON, for `simulate --params`).

@@ -32,9 +32,12 @@ impl From<LabelArgs> for LabelOptions {
         LabelOptions {
             recording: a.recording,
             site: a.site,
-            poses: a.poses,
+            poses: a.poses.clone(),
             out: a.out,
-            pairing: a.pairing.into(),
+            pairing: host_sim::pairing::PairingOptions {
+                poses: Some(a.poses),
+                ..host_sim::pairing::PairingOptions::from(a.pairing)
+            },
         }
     }
 }

@@ -25,6 +25,10 @@ pub struct PairingArgs {
     /// were trained on (their manifest's `speckle_looks`), else 1.
     #[arg(long)]
     pub pings_per_view: Option<u32>,
+    /// The ProjectedSonarImage topic of a ROS 2 bag given as the recording (default: the
+    /// bag's only one; docs/ROS2.md).
+    #[arg(long)]
+    pub topic: Option<String>,
 }
 
 impl From<PairingArgs> for PairingOptions {
@@ -34,6 +38,9 @@ impl From<PairingArgs> for PairingOptions {
             views: a.views,
             pairs: a.pairs,
             pings_per_view: a.pings_per_view,
+            topic: a.topic,
+            // `run` and `label` give their own --poses.
+            poses: None,
         }
     }
 }

@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use host_sim::pairing::PairingOptions;
 use host_sim::run::RunOptions;
 use host_sim::sweep::CloudFrame;
 
@@ -50,7 +51,10 @@ impl From<RunArgs> for RunOptions {
         RunOptions {
             recording: a.recording,
             gt: a.gt,
-            pairing: a.pairing.into(),
+            pairing: PairingOptions {
+                poses: a.poses.clone(),
+                ..PairingOptions::from(a.pairing)
+            },
             ping_dynamic_range_db: a.ping_dynamic_range_db,
             out: a.out,
             json: a.json,

@@ -284,3 +284,48 @@ pub struct StringMsg {
 impl Message for StringMsg {
     const SCHEMA: Schema = Schema::String;
 }
+
+/// `marine_acoustic_msgs/PingInfo`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PingInfo {
+    /// Centre frequency, Hz (0: not given).
+    pub frequency: f32,
+    /// Speed of sound of the ranges, m/s (0: not given).
+    pub sound_speed: f32,
+    /// −3 dB transmit (vertical) beam widths, radians.
+    pub tx_beamwidths: Vec<f32>,
+    /// −3 dB receive (horizontal) beam widths, radians.
+    pub rx_beamwidths: Vec<f32>,
+}
+
+/// `marine_acoustic_msgs/SonarImageData`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SonarImageData {
+    /// false: little endian.
+    pub is_bigendian: bool,
+    /// `DTYPE_UINT8` (0) here.
+    pub dtype: u32,
+    /// Beams per range row.
+    pub beam_count: u32,
+    /// Range-major: `(range r, beam b)` at `r · beam_count + b`.
+    pub data: Bytes,
+}
+
+/// `marine_acoustic_msgs/ProjectedSonarImage`: Z forward, X up, each beam's direction.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ProjectedSonarImage {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Frequency, sound speed, beam widths.
+    pub ping_info: PingInfo,
+    /// Each beam's unit direction in the message's axes.
+    pub beam_directions: Vec<Vector3>,
+    /// Centre of each range bin, metres.
+    pub ranges: Vec<f32>,
+    /// The image.
+    pub image: SonarImageData,
+}
+
+impl Message for ProjectedSonarImage {
+    const SCHEMA: Schema = Schema::ProjectedSonarImage;
+}

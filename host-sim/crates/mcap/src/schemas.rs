@@ -25,6 +25,17 @@ const TRANSFORM_STAMPED: &str =
     "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n";
 const TF_MESSAGE: &str = "geometry_msgs/TransformStamped[] transforms\n";
 const STRING: &str = "string data\n";
+// marine_msgs 2.1.0 (marine_acoustic_msgs), its constants kept: readers list them.
+const PING_INFO: &str = "float32 frequency\nfloat32 sound_speed\nfloat32[] tx_beamwidths\n\
+float32[] rx_beamwidths\n";
+const SONAR_IMAGE_DATA: &str = "bool is_bigendian\nuint32 DTYPE_UINT8 = 0\n\
+uint32 DTYPE_INT8 = 1\nuint32 DTYPE_UINT16 = 2\nuint32 DTYPE_INT16 = 3\n\
+uint32 DTYPE_UINT32 = 4\nuint32 DTYPE_INT32 = 5\nuint32 DTYPE_UINT64 = 6\n\
+uint32 DTYPE_INT64 = 7\nuint32 DTYPE_FLOAT32 = 8\nuint32 DTYPE_FLOAT64 = 9\n\
+uint32 dtype\nuint32 beam_count\nuint8[] data\n";
+const PROJECTED_SONAR_IMAGE: &str = "std_msgs/Header header\n\
+marine_acoustic_msgs/PingInfo ping_info\ngeometry_msgs/Vector3[] beam_directions\n\
+float32[] ranges\nmarine_acoustic_msgs/SonarImageData image\n";
 
 /// A message type written to MCAP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -37,6 +48,8 @@ pub enum Schema {
     TfMessage,
     /// `std_msgs/msg/String`.
     String,
+    /// `marine_acoustic_msgs/msg/ProjectedSonarImage`.
+    ProjectedSonarImage,
 }
 
 impl Schema {
@@ -47,6 +60,7 @@ impl Schema {
             Self::PointCloud2 => "sensor_msgs/msg/PointCloud2",
             Self::TfMessage => "tf2_msgs/msg/TFMessage",
             Self::String => "std_msgs/msg/String",
+            Self::ProjectedSonarImage => "marine_acoustic_msgs/msg/ProjectedSonarImage",
         }
     }
 
@@ -79,6 +93,16 @@ impl Schema {
                 ],
             ),
             Self::String => (STRING, &[]),
+            Self::ProjectedSonarImage => (
+                PROJECTED_SONAR_IMAGE,
+                &[
+                    HEADER_DEPS[0],
+                    HEADER_DEPS[1],
+                    ("marine_acoustic_msgs/PingInfo", PING_INFO),
+                    ("geometry_msgs/Vector3", VECTOR3),
+                    ("marine_acoustic_msgs/SonarImageData", SONAR_IMAGE_DATA),
+                ],
+            ),
         }
     }
 
@@ -107,6 +131,7 @@ mod tests {
             Schema::PointCloud2,
             Schema::TfMessage,
             Schema::String,
+            Schema::ProjectedSonarImage,
         ] {
             let text = s.definition();
             let defined: Vec<&str> = text

@@ -25,8 +25,7 @@ use epssn::pairing::FeatureCache;
 use fixed::types::U16F16;
 use serde::Serialize;
 
-use epssn_aris::aris::ArisReader;
-use epssn_aris::polar::frame_to_polar;
+use epssn_ros2::{OpenOptions, Recording};
 
 use crate::device::{Device, Reply};
 pub use crate::faults::FuzzReport;
@@ -273,9 +272,9 @@ struct HostFrame {
 }
 
 /// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
-/// run` ([`epssn_aris::polar::geometry_mismatch`]).
-fn check_geometry(reader: &ArisReader) -> Result<()> {
-    if let Some(why) = epssn_aris::polar::geometry_mismatch(reader)? {
+/// run` ([`Recording::geometry_mismatch`]).
+fn check_geometry(reader: &Recording) -> Result<()> {
+    if let Some(why) = reader.geometry_mismatch()? {
         bail!(
             "recording geometry does not fit the model ({}): {why}",
             config::SPEC_NAME
@@ -287,8 +286,9 @@ fn check_geometry(reader: &ArisReader) -> Result<()> {
 /// Reads the recording, resamples every frame and runs the host library with the same
 /// pairing as the firmware.
 fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<HostFrame>> {
-    let reader =
-        ArisReader::open(path).with_context(|| format!("opening recording {}", path.display()))?;
+    // An ARIS file or a ROS 2 bag (its only ProjectedSonarImage topic), as `run` reads it.
+    let reader = Recording::open(path, &OpenOptions::default())
+        .with_context(|| format!("opening recording {}", path.display()))?;
     check_geometry(&reader).with_context(|| format!("{}", path.display()))?;
     let model = Model::from_blob(blob).map_err(|e| anyhow!("weight blob refused: {e:?}"))?;
     let mut ws = Box::new(Workspace::new());
@@ -297,17 +297,15 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
     let mut out: Vec<HostFrame> = Vec::new();
     for i in 0..n {
         let frame = reader.frame(i)?;
-        let h = &frame.header;
-        let roll = if h.sonar_roll_deg.is_finite() {
-            h.sonar_roll_deg
-        } else if h.roll_abs_position_deg.is_finite() {
-            h.roll_abs_position_deg
-        } else {
-            bail!("frame {i} has neither SonarRoll nor RollAbsPosition: no roll to pair by");
+        let Some(roll) = reader.roll_deg(i).map(|r| r as f32) else {
+            bail!(
+                "frame {i} has no roll to pair by (an ARIS file: neither SonarRoll nor \
+                 RollAbsPosition; a bag: no transform of its frame in /tf)"
+            );
         };
-        let image = frame_to_polar(&frame)?;
+        let image = frame.to_polar()?;
         let seq = i as u32 + 1;
-        let attitude = h.attitude().and_then(epssn::attitude::Attitude::from_array);
+        let attitude = reader.attitude(i);
         let newest = cache
             .insert_with_attitude(seq, roll, attitude, |f| model.features(&image, &mut ws, f))
             .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
@@ -342,7 +340,7 @@ fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<
             None => None,
         };
         out.push(HostFrame {
-            time_us: h.frame_time_us,
+            time_us: frame.time_us,
             roll_deg: roll,
             attitude,
             rejected,

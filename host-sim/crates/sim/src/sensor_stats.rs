@@ -411,18 +411,19 @@ pub fn check_measurable(stats: &ImageStats) -> Result<()> {
     Ok(())
 }
 
-/// Measures every frame of an ARIS recording.
+/// Measures every frame of a recording: an ARIS file, or a ROS 2 bag's only
+/// ProjectedSonarImage topic (its native pings, `epssn_ros2::Recording`).
 pub fn measure_recording(path: &std::path::Path) -> Result<ImageStats> {
     use anyhow::Context;
-    let reader = epssn_aris::aris::ArisReader::open(path)
+    let reader = epssn_ros2::Recording::open(path, &Default::default())
         .with_context(|| format!("opening {}", path.display()))?;
     ensure!(
         reader.frame_count() > 0,
         "{}: the recording holds no frames",
         path.display()
     );
-    let frames = reader
-        .frames()
+    let frames = (0..reader.frame_count())
+        .map(|i| reader.frame(i))
         .collect::<Result<Vec<_>, _>>()
         .with_context(|| format!("reading the frames of {}", path.display()))?;
     let refs: Vec<FrameRef> = frames
