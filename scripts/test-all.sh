@@ -124,6 +124,17 @@ EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/ep
 # And on the Cortex-M55 with the Helium kernels (weights/budgets-m55-epssn-p.json).
 EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
     --target m55 --frames 3 --faults 0 --json
+# Each model trained on one of the paper's protocols (weights/epssn-p-PROTOCOL, docs/PAPER.md):
+# embedded in turn, bit for bit on the M55; and its accuracy guard on fresh held-out data.
+for model in weights/epssn-p-*/; do
+  [ -f "${model}epssn-p.q8.bin" ] || continue # no such model shipped (the glob kept its pattern)
+  protocol=$(basename "$model")
+  protocol=${protocol#epssn-p-}
+  EPSSN_BLOB="$PWD/${model}epssn-p.q8.bin" EPSSN_SPEC=weights/epssn-p.json cargo run -q \
+      -p epssn-sil --target-dir target/epssn-p -- --target m55 --frames 3 --faults 0 --json
+  EPSSN_SPEC=weights/epssn-p.json cargo test -p host-sim --test accuracy_guard \
+      --target-dir target/epssn-p -- --ignored --exact "epssn_p_${protocol}_model_keeps_its_accuracy"
+done
 echo "(EPSSN-P step $((SECONDS - p_start)) s)"
 
 step "ROS 2 bags (docs/ROS2.md): ARIS 3000 demos as bags give the .aris depth maps bit for bit"
