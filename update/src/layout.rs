@@ -8,6 +8,9 @@
 //! last ones hold one write unit per [`PAGE`] of the image (its *page mark*: programmed once the
 //! page is written and read back), so the marks are erased before the image on a new upload.
 
+/// The largest write unit the updater handles (the STM32H7's flash word is 32 bytes).
+pub const MAX_WRITE: usize = 32;
+
 /// Bytes of an upload page: chunks start on a page and cover whole pages (the image's last one
 /// may be short); progress is kept per page.
 pub const PAGE: usize = 1024;
@@ -26,7 +29,7 @@ pub struct Layout {
 }
 
 /// Why a partition cannot hold two slots and the journal (or its write unit is over
-/// [`MAX_WRITE`](crate::updater::MAX_WRITE) or does not divide a page).
+/// [`MAX_WRITE`] or does not divide a page).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BadGeometry;
 
@@ -39,7 +42,7 @@ impl Layout {
     pub const fn new(capacity: usize, erase: usize, write: usize) -> Result<Self, BadGeometry> {
         if erase == 0
             || write == 0
-            || write > crate::updater::MAX_WRITE
+            || write > MAX_WRITE
             || !PAGE.is_multiple_of(write)
             || capacity < 2 * erase
         {

@@ -16,7 +16,7 @@ use epssn::crc32::crc32;
 
 use crate::image::{self, Header, HeaderError, HEADER_LEN};
 use crate::journal::{self, Record};
-use crate::layout::{BadGeometry, Layout, PAGE};
+use crate::layout::{BadGeometry, Layout, MAX_WRITE, PAGE};
 use crate::verify::verify;
 use crate::MappedFlash;
 
@@ -380,6 +380,3 @@ impl<F: MappedFlash> Updater<F> {
         Ok(())
     }
 }
-
-/// The largest write unit the updater handles (the STM32H7's flash word is 32 bytes).
-pub const MAX_WRITE: usize = 32;
