@@ -2,7 +2,7 @@
 
 use anyhow::{anyhow, ensure, Result};
 use epssn::config;
-use epssn::geometry::{resample_to_grid, Grid};
+use epssn::geometry::{resample_to_grid, Grid, SampleRanges};
 use epssn::ping_average::{IntensityTable, PingAverager};
 
 use crate::aris::{ArisReader, Frame};
@@ -35,6 +35,21 @@ pub fn frame_to_polar(frame: &Frame) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+/// Why samples at `r` do not cover the model's range window (within one sample), if they do not:
+/// the one rule for every recording format.
+pub fn range_window_mismatch(r: &SampleRanges) -> Option<String> {
+    let end = r.start + r.step * r.samples.saturating_sub(1) as f64;
+    (r.start > config::R_MIN_M + r.step || end < config::R_MAX_M - r.step).then(|| {
+        format!(
+            "range window {:.3}–{:.3} m does not cover the model's {:.3}–{:.3} m",
+            r.start,
+            end,
+            config::R_MIN_M,
+            config::R_MAX_M
+        )
+    })
+}
+
 /// Explains why a recording cannot feed the model, or `None` when it fits.
 pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
     let mut why = Vec::new();
@@ -58,17 +73,7 @@ pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
     }
     if let Ok(frame) = reader.frame(0) {
         if let Ok(r) = frame.range_geometry() {
-            let end = r.start + r.step * (r.samples.saturating_sub(1)) as f64;
-            // The recording must cover the model's window (within one sample).
-            if r.start > config::R_MIN_M + r.step || end < config::R_MAX_M - r.step {
-                why.push(format!(
-                    "range window {:.3}–{:.3} m does not cover the model's {:.3}–{:.3} m",
-                    r.start,
-                    end,
-                    config::R_MIN_M,
-                    config::R_MAX_M
-                ));
-            }
+            why.extend(range_window_mismatch(&r));
         }
     }
     Ok((!why.is_empty()).then(|| why.join("; ")))

@@ -35,16 +35,6 @@ pub fn misfit(frame: &SonarFrame) -> Option<String> {
             cols.len()
         ));
     }
-    let r = frame.ranges;
-    let end = r.start + r.step * r.samples.saturating_sub(1) as f64;
-    if r.start > config::R_MIN_M + r.step || end < config::R_MAX_M - r.step {
-        why.push(format!(
-            "range window {:.3}–{:.3} m does not cover the model's {:.3}–{:.3} m",
-            r.start,
-            end,
-            config::R_MIN_M,
-            config::R_MAX_M
-        ));
-    }
+    why.extend(epssn_aris::polar::range_window_mismatch(&frame.ranges));
     (!why.is_empty()).then(|| why.join("; "))
 }
