@@ -270,3 +270,64 @@ fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
     assert_eq!(r["bit_exact"], true);
     assert_eq!(r["budget_violations"], serde_json::json!([]));
 }
+
+/// `--topic` picks a bag's sonar topic: without it a bag of two is refused naming both, an
+/// unknown one is named, and the chosen one is read (its narrow fan then refused as unfit).
+#[test]
+fn a_bag_topic_is_chosen_by_name() {
+    use epssn_ros2::encode::{bag, cdr, Compression, Entry};
+    use epssn_ros2::msgs::{
+        Header, PingInfo, ProjectedSonarImage, SonarImageData, PROJECTED_SONAR_IMAGE,
+    };
+    let (beams, bins) = (16usize, 32usize);
+    let img = cdr::sonar_image(&ProjectedSonarImage {
+        header: Header {
+            stamp_ns: 1,
+            frame_id: "sonar_image".into(),
+        },
+        ping_info: PingInfo {
+            frequency: 3e6,
+            sound_speed: 1500.0,
+            tx_beamwidths: vec![],
+            rx_beamwidths: vec![],
+        },
+        beam_directions: (0..beams)
+            .map(|b| {
+                let az = (b as f64 / (beams - 1) as f64 - 0.5) * 0.1;
+                [0.0, -az.sin(), az.cos()]
+            })
+            .collect(),
+        ranges: (0..bins).map(|r| 1.0 + 0.05 * r as f32).collect(),
+        image: SonarImageData {
+            is_bigendian: false,
+            dtype: 0,
+            beam_count: beams as u32,
+            data: vec![9; beams * bins],
+        },
+    });
+    let entry = |topic| Entry {
+        topic,
+        schema: PROJECTED_SONAR_IMAGE,
+        log_time: 0,
+        data: &img,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two.mcap");
+    std::fs::write(&path, bag(&[entry("/a"), entry("/b")], Compression::None)).unwrap();
+    let refusal = |topic: Option<&str>| {
+        let mut cmd = host_sim();
+        cmd.args(["sil", "--recording"]).arg(&path);
+        if let Some(t) = topic {
+            cmd.args(["--topic", t]);
+        }
+        let out = cmd.output().expect("run host-sim sil");
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = refusal(None);
+    assert!(err.contains("/a, /b") && err.contains("--topic"), "{err}");
+    let err = refusal(Some("/c"));
+    assert!(err.contains("/c"), "{err}");
+    let err = refusal(Some("/b"));
+    assert!(err.contains("geometry does not fit the model"), "{err}");
+}

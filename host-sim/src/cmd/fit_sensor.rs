@@ -13,6 +13,9 @@ pub struct FitSensorArgs {
     /// simulator is fitted to.
     #[arg(long)]
     pub recording: PathBuf,
+    /// A bag's ProjectedSonarImage topic (default: its only one).
+    #[arg(long)]
+    pub topic: Option<String>,
     /// Write the fitted SonarSimParams here (JSON, for `simulate --params`).
     #[arg(long)]
     pub out: PathBuf,
@@ -38,6 +41,7 @@ impl From<FitSensorArgs> for FitSensorOptions {
     fn from(a: FitSensorArgs) -> Self {
         FitSensorOptions {
             recording: a.recording,
+            topic: a.topic,
             out: a.out,
             params: a.params,
             scene: a.scene.into(),

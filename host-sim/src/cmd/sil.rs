@@ -13,6 +13,9 @@ pub struct SilArgs {
     /// The recording to stream (default: the bundled simulated demo, `data/demo/`).
     #[arg(long)]
     pub recording: Option<PathBuf>,
+    /// A bag's ProjectedSonarImage topic (default: its only one).
+    #[arg(long)]
+    pub topic: Option<String>,
     /// Print machine-readable JSON.
     #[arg(long)]
     pub json: bool,
@@ -72,6 +75,7 @@ impl From<SilArgs> for SilOptions {
     fn from(a: SilArgs) -> Self {
         SilOptions {
             recording: a.recording,
+            topic: a.topic,
             json: a.json,
             firmware: a.firmware,
             target: a.target.into(),

@@ -38,6 +38,8 @@ use crate::target::Target;
 pub struct SilOptions {
     /// The recording to stream (default: the bundled simulated demo, `data/demo/`).
     pub recording: Option<PathBuf>,
+    /// A bag's ProjectedSonarImage topic (default: its only one).
+    pub topic: Option<String>,
     /// Print machine-readable JSON.
     pub json: bool,
     /// The firmware ELF (default: build the target's firmware crate in release and use it).
@@ -285,9 +287,14 @@ fn check_geometry(reader: &Recording) -> Result<()> {
 
 /// Reads the recording, resamples every frame and runs the host library with the same
 /// pairing as the firmware.
-fn prepare_frames(path: &Path, limit: Option<usize>, blob: &[u8]) -> Result<Vec<HostFrame>> {
-    // An ARIS file or a ROS 2 bag (its only ProjectedSonarImage topic), as `run` reads it.
-    let reader = Recording::open(path, &OpenOptions::default())
+fn prepare_frames(
+    path: &Path,
+    open: &OpenOptions,
+    limit: Option<usize>,
+    blob: &[u8],
+) -> Result<Vec<HostFrame>> {
+    // An ARIS file or a ROS 2 bag's ProjectedSonarImage topic, as `run` reads it.
+    let reader = Recording::open(path, open)
         .with_context(|| format!("opening recording {}", path.display()))?;
     check_geometry(&reader).with_context(|| format!("{}", path.display()))?;
     let model = Model::from_blob(blob).map_err(|e| anyhow!("weight blob refused: {e:?}"))?;
@@ -642,7 +649,10 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
         .clone()
         .unwrap_or_else(|| epssn_sim::dataset::demo_dir().join("recording.aris"));
     let blob = firmware_blob()?;
-    let frames = prepare_frames(&recording, args.frames, &blob)?;
+    let open = OpenOptions {
+        topic: args.topic.clone(),
+    };
+    let frames = prepare_frames(&recording, &open, args.frames, &blob)?;
     if frames.is_empty() {
         bail!("{}: no frames", recording.display());
     }

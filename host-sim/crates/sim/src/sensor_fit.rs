@@ -515,8 +515,11 @@ pub fn fit(target: &ImageStats, bench: &Bench) -> Result<Fit> {
 /// `host-sim fit-sensor`.
 #[derive(Debug)]
 pub struct FitSensorOptions {
-    /// The recording (.aris) whose image statistics the simulator is fitted to.
+    /// The recording (.aris, or a ROS 2 bag of ProjectedSonarImage) whose image statistics the
+    /// simulator is fitted to.
     pub recording: PathBuf,
+    /// A bag's ProjectedSonarImage topic (default: its only one).
+    pub topic: Option<String>,
     /// Write the fitted SonarSimParams here (JSON, for `simulate --params`).
     pub out: PathBuf,
     /// Base parameters (geometry, rays; JSON as `simulate --params`); default: the defaults.
@@ -635,7 +638,7 @@ pub fn run(args: &FitSensorOptions, out: &mut dyn Write) -> Result<()> {
         "--scenes must be within 1..=64"
     );
     let started = std::time::Instant::now();
-    let target = measure_recording(&args.recording)?;
+    let target = measure_recording(&args.recording, args.topic.as_deref())?;
     let bench = Bench::new(args.scene, args.scenes, args.seed, &base)?;
     let default_stats = bench
         .stats(&base)

@@ -411,11 +411,14 @@ pub fn check_measurable(stats: &ImageStats) -> Result<()> {
     Ok(())
 }
 
-/// Measures every frame of a recording: an ARIS file, or a ROS 2 bag's only
-/// ProjectedSonarImage topic (its native pings, `epssn_ros2::Recording`).
-pub fn measure_recording(path: &std::path::Path) -> Result<ImageStats> {
+/// Measures every frame of a recording: an ARIS file, or a ROS 2 bag's ProjectedSonarImage
+/// topic `topic` (default: its only one), its native pings (`epssn_ros2::Recording`).
+pub fn measure_recording(path: &std::path::Path, topic: Option<&str>) -> Result<ImageStats> {
     use anyhow::Context;
-    let reader = epssn_ros2::Recording::open(path, &Default::default())
+    let options = epssn_ros2::OpenOptions {
+        topic: topic.map(str::to_owned),
+    };
+    let reader = epssn_ros2::Recording::open(path, &options)
         .with_context(|| format!("opening {}", path.display()))?;
     ensure!(
         reader.frame_count() > 0,

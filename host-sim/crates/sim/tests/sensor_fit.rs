@@ -82,7 +82,7 @@ fn the_fit_recovers_known_parameters_from_simulated_recordings() {
         let refs: Vec<&[u8]> = frames.iter().map(Vec::as_slice).collect();
         let path = dir.path().join("rec.aris");
         write_aris(&path, &refs, 0.0, [0.0, 0.0], &truth).unwrap();
-        let target = measure_recording(&path).unwrap();
+        let target = measure_recording(&path, None).unwrap();
         let f = fit(&target, &bench).unwrap();
         let p = &f.params;
         let floor_db = |p: &SonarSimParams| 10.0 * p.noise_floor.log10();
@@ -162,6 +162,7 @@ fn fit_file(bytes: &[u8]) -> String {
     std::fs::write(&rec, bytes).unwrap();
     let args = FitSensorOptions {
         recording: rec,
+        topic: None,
         out: dir.path().join("p.json"),
         params: None,
         scene: SceneKind::Artificial,
@@ -289,7 +290,7 @@ fn forming_with_the_traced_pulse_is_the_tracing_and_the_defaults_serialise_as_be
 fn the_fit_matches_the_aris1200_recordings_texture() {
     let rec = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../../data/aris1200-telephoto-6frames.aris");
-    let target = measure_recording(&rec).unwrap();
+    let target = measure_recording(&rec, None).unwrap();
     let bench = Bench::new(SceneKind::Artificial, SCENES, 0, &SonarSimParams::default()).unwrap();
     let f = fit(&target, &bench).unwrap().fitted;
     println!(
@@ -309,4 +310,65 @@ fn the_fit_matches_the_aris1200_recordings_texture() {
     assert_eq!(f.histogram_modes, 1);
     assert_eq!(target.histogram_modes, 1);
     assert!((f.dark_mean - target.dark_mean).abs() < 1.0);
+}
+
+/// A bag with two ProjectedSonarImage topics: without a topic the fit names both and asks for
+/// `--topic`; with one it reads that topic's pings (flat here, so it stops at "no bright
+/// windows", past the choice of topic).
+#[test]
+fn a_bag_topic_is_chosen_by_name() {
+    use epssn_ros2::encode::{bag, cdr, Compression, Entry};
+    use epssn_ros2::msgs::{
+        Header, PingInfo, ProjectedSonarImage, SonarImageData, PROJECTED_SONAR_IMAGE,
+    };
+    let (beams, bins) = (48usize, 200usize);
+    let ping = ProjectedSonarImage {
+        header: Header {
+            stamp_ns: 1,
+            frame_id: "sonar_image".into(),
+        },
+        ping_info: PingInfo {
+            frequency: 3e6,
+            sound_speed: 1500.0,
+            tx_beamwidths: vec![],
+            rx_beamwidths: vec![],
+        },
+        beam_directions: (0..beams)
+            .map(|b| {
+                let az = (b as f64 / (beams - 1) as f64 - 0.5) * 0.5;
+                [0.0, -az.sin(), az.cos()]
+            })
+            .collect(),
+        ranges: (0..bins).map(|r| 1.0 + 0.01 * r as f32).collect(),
+        image: SonarImageData {
+            is_bigendian: false,
+            dtype: 0,
+            beam_count: beams as u32,
+            data: vec![60; beams * bins],
+        },
+    };
+    let img = cdr::sonar_image(&ping);
+    let entry = |topic, log_time| Entry {
+        topic,
+        schema: PROJECTED_SONAR_IMAGE,
+        log_time,
+        data: &img,
+    };
+    let entries: Vec<Entry> = (0..3)
+        .flat_map(|t| [entry("/port", t), entry("/starboard", t)])
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two.mcap");
+    std::fs::write(&path, bag(&entries, Compression::None)).unwrap();
+
+    let err = format!("{:#}", measure_recording(&path, None).unwrap_err());
+    assert!(
+        err.contains("/port, /starboard") && err.contains("--topic"),
+        "{err}"
+    );
+    let err = format!(
+        "{:#}",
+        measure_recording(&path, Some("/starboard")).unwrap_err()
+    );
+    assert!(err.contains("no bright windows"), "{err}");
 }
