@@ -275,36 +275,19 @@ fn the_device_rejects_the_same_jittered_pairs_as_the_host() {
 /// unknown one is named, and the chosen one is read (its narrow fan then refused as unfit).
 #[test]
 fn a_bag_topic_is_chosen_by_name() {
-    use epssn_ros2::encode::{bag, cdr, Compression, Entry};
-    use epssn_ros2::msgs::{
-        Header, PingInfo, ProjectedSonarImage, SonarImageData, PROJECTED_SONAR_IMAGE,
-    };
+    use epssn_ros2::encode::{bag, cdr, even_azimuths, level_ping, Compression, Entry};
+    use epssn_ros2::msgs::PROJECTED_SONAR_IMAGE;
     let (beams, bins) = (16usize, 32usize);
-    let img = cdr::sonar_image(&ProjectedSonarImage {
-        header: Header {
-            stamp_ns: 1,
-            frame_id: "sonar_image".into(),
-        },
-        ping_info: PingInfo {
-            frequency: 3e6,
-            sound_speed: 1500.0,
-            tx_beamwidths: vec![],
-            rx_beamwidths: vec![],
-        },
-        beam_directions: (0..beams)
-            .map(|b| {
-                let az = (b as f64 / (beams - 1) as f64 - 0.5) * 0.1;
-                [0.0, -az.sin(), az.cos()]
-            })
-            .collect(),
-        ranges: (0..bins).map(|r| 1.0 + 0.05 * r as f32).collect(),
-        image: SonarImageData {
-            is_bigendian: false,
-            dtype: 0,
-            beam_count: beams as u32,
-            data: vec![9; beams * bins],
-        },
-    });
+    let ranges: Vec<f32> = (0..bins).map(|r| 1.0 + 0.05 * r as f32).collect();
+    let flat = vec![9; beams * bins];
+    let img = cdr::sonar_image(&level_ping(
+        1,
+        &even_azimuths(beams, 0.1),
+        &ranges,
+        1500.0,
+        0,
+        flat,
+    ));
     let entry = |topic| Entry {
         topic,
         schema: PROJECTED_SONAR_IMAGE,

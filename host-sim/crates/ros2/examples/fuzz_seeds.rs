@@ -6,43 +6,26 @@
 use std::path::PathBuf;
 
 use epssn_ros2::encode::{self, bag, Compression, Entry};
-use epssn_ros2::msgs::{
-    Header, PingInfo, ProjectedSonarImage, SonarImageData, TransformStamped, PROJECTED_SONAR_IMAGE,
-    TF_MESSAGE,
-};
+use epssn_ros2::msgs::{Header, TransformStamped, PROJECTED_SONAR_IMAGE, TF_MESSAGE};
 
 fn main() -> std::io::Result<()> {
     let dir = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| ".".into()));
     std::fs::create_dir_all(&dir)?;
     let (beams, ranges) = (16usize, 64usize);
-    let half = 15f64.to_radians();
-    let image = ProjectedSonarImage {
-        header: Header {
-            stamp_ns: 1_700_000_000_000_000_000,
-            frame_id: "sonar_image".into(),
-        },
-        ping_info: PingInfo {
-            frequency: 3e6,
-            sound_speed: 1500.0,
-            tx_beamwidths: vec![0.24],
-            rx_beamwidths: vec![],
-        },
-        beam_directions: (0..beams)
-            .map(|b| {
-                let a = -half + 2.0 * half * b as f64 / (beams - 1) as f64;
-                [0.0, -a.sin(), a.cos()]
-            })
-            .collect(),
-        ranges: (0..ranges).map(|i| 1.9 + 0.03 * i as f32).collect(),
-        image: SonarImageData {
-            is_bigendian: false,
-            dtype: 2,
-            beam_count: beams as u32,
-            data: (0..beams * ranges)
-                .flat_map(|i| ((i * 977) as u16).to_le_bytes())
-                .collect(),
-        },
-    };
+    let data = (0..beams * ranges)
+        .flat_map(|i| ((i * 977) as u16).to_le_bytes())
+        .collect();
+    let ranges: Vec<f32> = (0..ranges).map(|i| 1.9 + 0.03 * i as f32).collect();
+    let azimuths = encode::even_azimuths(beams, 30f64.to_radians());
+    let mut image = encode::level_ping(
+        1_700_000_000_000_000_000,
+        &azimuths,
+        &ranges,
+        1500.0,
+        2,
+        data,
+    );
+    image.ping_info.tx_beamwidths = vec![0.24];
     let s = std::f64::consts::FRAC_1_SQRT_2;
     let tf = TransformStamped {
         header: Header {

@@ -6,6 +6,7 @@
 use std::io::Write;
 
 use crate::header::{op, MAGIC};
+use crate::msgs::{Header, PingInfo, ProjectedSonarImage, SonarImageData};
 
 /// A chunk's compression.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -121,6 +122,46 @@ pub fn bag(entries: &[Entry<'_>], compression: Compression) -> Vec<u8> {
     record(&mut out, op::FOOTER, &[0u8; 20]);
     out.extend(MAGIC);
     out
+}
+
+/// A ping of a sonar whose beams lie at `azimuths` (rad, in the message's Y-Z plane: Z forward,
+/// positive azimuth to -Y) and samples at `ranges` (m), in frame `sonar_image`, with image
+/// bytes `data` of `dtype` (sonar_image_proc's layout: range-major, beam fastest).
+pub fn level_ping(
+    stamp_ns: i64,
+    azimuths: &[f64],
+    ranges: &[f32],
+    sound_speed: f32,
+    dtype: u32,
+    data: Vec<u8>,
+) -> ProjectedSonarImage {
+    ProjectedSonarImage {
+        header: Header {
+            stamp_ns,
+            frame_id: "sonar_image".into(),
+        },
+        ping_info: PingInfo {
+            frequency: 3e6,
+            sound_speed,
+            tx_beamwidths: vec![],
+            rx_beamwidths: vec![],
+        },
+        beam_directions: azimuths.iter().map(|&a| [0.0, -a.sin(), a.cos()]).collect(),
+        ranges: ranges.to_vec(),
+        image: SonarImageData {
+            is_bigendian: false,
+            dtype,
+            beam_count: azimuths.len() as u32,
+            data,
+        },
+    }
+}
+
+/// `n` azimuths evenly spread over `width` (rad), centred on the forward axis.
+pub fn even_azimuths(n: usize, width: f64) -> Vec<f64> {
+    (0..n)
+        .map(|b| (b as f64 / (n.max(2) - 1) as f64 - 0.5) * width)
+        .collect()
 }
 
 /// CDR encoding of the two message types, little endian, for tests and seeds.

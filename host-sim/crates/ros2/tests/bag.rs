@@ -8,15 +8,10 @@ use epssn_ros2::bag::BagRecording;
 use epssn_ros2::encode::{self, bag, Compression, Entry};
 use epssn_ros2::fit::misfit;
 use epssn_ros2::msgs::{
-    Header, PingInfo, ProjectedSonarImage, SonarImageData, TransformStamped, PROJECTED_SONAR_IMAGE,
-    TF_MESSAGE,
+    Header, ProjectedSonarImage, TransformStamped, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
 };
 
 const T0: i64 = 1_700_000_000_000_000_000;
-
-fn direction(az: f64) -> [f64; 3] {
-    [0.0, -az.sin(), az.cos()]
-}
 
 /// A ping of `azimuths` × `ranges`, uint8 value `value(range index, beam index)`.
 fn ping(
@@ -30,26 +25,7 @@ fn ping(
         .flat_map(|r| (0..azimuths.len()).map(move |b| (r, b)))
         .map(|(r, b)| value(r, b))
         .collect();
-    ProjectedSonarImage {
-        header: Header {
-            stamp_ns,
-            frame_id: "sonar_image".into(),
-        },
-        ping_info: PingInfo {
-            frequency: 3e6,
-            sound_speed,
-            tx_beamwidths: vec![],
-            rx_beamwidths: vec![],
-        },
-        beam_directions: azimuths.iter().map(|&a| direction(a)).collect(),
-        ranges: ranges.to_vec(),
-        image: SonarImageData {
-            is_bigendian: false,
-            dtype: 0,
-            beam_count: azimuths.len() as u32,
-            data,
-        },
-    }
+    encode::level_ping(stamp_ns, azimuths, ranges, sound_speed, 0, data)
 }
 
 /// map ← sonar_image for a level sonar rolled `roll_deg` about its forward axis: the rotation
