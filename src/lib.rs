@@ -31,7 +31,7 @@
 #![cfg_attr(feature = "dsp", deny(unsafe_code))]
 #![deny(missing_docs)]
 
-#[cfg(test)]
+#[cfg(any(test, feature = "std"))]
 extern crate std;
 
 // The spec, the geometry, the grids and the CRC live in `epssn-spec` (shared with the build
@@ -43,6 +43,8 @@ pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod fault;
+#[cfg(feature = "std")]
+pub mod golden;
 pub mod kernels;
 pub mod link;
 pub mod model;

@@ -25,13 +25,46 @@ macro_rules! log {
 use crate::config;
 use crate::fault::{Record, ResetCause};
 use crate::link::{
-    self, encode, error_text, DecodeError, Decoder, DepthData, ErrorCode, Message, Status,
+    self, encode, error_text, DecodeError, Decoder, DepthData, ErrorCode, Held, Message, Serving,
+    Status, MAX_ERROR_TEXT,
 };
 use crate::model::{Model, Workspace};
 use crate::pairing::FeatureCache;
 use embedded_hal::digital::OutputPin;
 use embedded_io::{Read, ReadReady, Write};
 use fixed::types::U16F16;
+
+/// Why a model update step was refused: its link code (13–23) and a short text.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Refusal {
+    /// The code the error reply carries.
+    pub code: ErrorCode,
+    /// Why, as the error reply's text.
+    pub text: heapless::String<MAX_ERROR_TEXT>,
+}
+
+/// A board's model updates (docs/UPDATE.md): the server hands it the `chunk`, `upload?` and
+/// `commit` messages and says in each hello which model serves. Without one, those messages
+/// are answered `Unexpected`.
+pub trait Updates {
+    /// The model that serves.
+    fn serving(&self) -> Serving;
+    /// The slot uploads go to and what it holds.
+    fn held(&self) -> (u8, Option<Held>);
+    /// Writes a chunk of the upload (offset in the image, CRC-32 of `data`).
+    fn chunk(&mut self, offset: u32, data: &[u8], crc: u32) -> Result<(), Refusal>;
+    /// Checks the held upload, runs the self-test on it with the server's scratch, and records
+    /// it as the model that serves from the next start; returns that model.
+    fn commit(
+        &mut self,
+        workspace: &mut Workspace,
+        cache: &mut FeatureCache,
+        depth: &mut [U16F16; config::DEPTH_LEN],
+    ) -> Result<Serving, Refusal>;
+    /// Called once the reply to a successful commit is sent: makes the committed model serve
+    /// (the QEMU boards reset and boot it).
+    fn switch(&mut self);
+}
 
 /// What the server works with, all in static memory.
 pub struct Server<'a> {
@@ -72,6 +105,8 @@ pub struct Server<'a> {
     /// ([`fault::inject`](crate::fault::inject)); returns for a code it does not know.
     #[cfg(feature = "fault-injection")]
     pub inject: &'a dyn Fn(u16),
+    /// The board's model updates, if it takes them.
+    pub updates: Option<&'a mut dyn Updates>,
     tx_seq: u32,
 }
 
@@ -108,6 +143,7 @@ impl<'a> Server<'a> {
             clear_fault: &nothing,
             #[cfg(feature = "fault-injection")]
             inject: &|_| {},
+            updates: None,
             tx_seq: 0,
         }
     }
@@ -159,7 +195,11 @@ impl<'a> Server<'a> {
         self.status.stack_high_water = (self.stack_high_water)();
         self.status.cached = self.cache.len() as u32;
         let seq = self.next_seq();
-        let status = self.status;
+        let mut status = self.status;
+        // The serving model: in a hello (the reply to a commit sets it itself, `update`).
+        if hello {
+            status.model = self.updates.as_deref().map(|u| u.serving());
+        }
         let record = self.fault.filter(|_| hello).map(|f| f.to_bytes());
         let msg = if hello {
             Message::Hello {
@@ -310,9 +350,52 @@ impl<'a> Server<'a> {
                 uart.flush()?;
                 return Ok(true);
             }
+            Ok(m @ (Message::Chunk { .. } | Message::UploadRequest { .. } | Message::Commit { .. }))
+                if self.updates.is_some() =>
+            {
+                self.update(uart, m)?
+            }
             Ok(m) => self.send_error(uart, ErrorCode::Unexpected, &m.kind())?,
         }
         Ok(false)
+    }
+
+    /// A model update message, for the board's [`Updates`]: a `chunk` or `upload?` is answered
+    /// by what the upload slot holds, a `commit` by a status naming the model that serves (then
+    /// the switch), each refusal by an error with its code.
+    #[inline(never)]
+    fn update<W: Write>(&mut self, uart: &mut W, m: Message<'_>) -> Result<(), W::Error> {
+        let Some(updates) = self.updates.as_deref_mut() else {
+            return Ok(());
+        };
+        let r = match m {
+            Message::Chunk {
+                offset, crc, data, ..
+            } => updates.chunk(offset, data, crc).map(|()| None),
+            Message::Commit { .. } => updates
+                .commit(self.workspace, self.cache, self.depth)
+                .map(Some),
+            _ => Ok(None),
+        };
+        match r {
+            Err(refusal) => self.send_error(uart, refusal.code, &refusal.text),
+            Ok(Some(serving)) => {
+                self.status.model = Some(serving);
+                let sent = self.send_status(uart, false);
+                self.status.model = None;
+                sent?;
+                uart.flush()?;
+                if let Some(u) = self.updates.as_deref_mut() {
+                    u.switch();
+                }
+                Ok(())
+            }
+            Ok(None) => {
+                let (slot, held) = updates.held();
+                let seq = self.next_seq();
+                self.send(uart, &Message::Upload { seq, slot, held })
+            }
+        }
     }
 
     /// Forgets the fault record if `ack` names it (a stale or wrong `ack` changes nothing).

@@ -2,8 +2,8 @@
 //! - embeds the weight blob named by `weights/FIRMWARE_WEIGHTS` (or `EPSSN_BLOB`) after
 //!   checking it with the library's own loader on the host: CRC, spec hash, shapes and every
 //!   accumulator bound, so a bad blob fails the build, not the vehicle;
-//! - runs the library on the host on a fixed pair of synthetic images and stores the depth map
-//!   as the golden vector of the boot self-test: the firmware on the target must reproduce the
+//! - runs the library on the host on the fixed pair of synthetic images (`epssn::golden`) and
+//!   stores the depth map as the golden vector of the boot self-test: the firmware on the target must reproduce the
 //!   x86 bits exactly (flash holds the map's CRC-32);
 //! - embeds the public key that signed model updates must verify against, from
 //!   `EPSSN_UPDATE_KEY` (a 32-byte file, `host-sim keygen`'s DIR/public; absolute or from the
@@ -13,25 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use epssn::config;
-use epssn::model::{Model, Workspace};
-
-fn synthetic_image(seed: u32) -> Vec<u8> {
-    // An LCG speckle over a bright arc whose range varies across the columns.
-    let mut s = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
-    let (r, b) = (config::INPUT_RANGE_BINS, config::INPUT_COLUMNS);
-    let mut img = vec![0u8; r * b];
-    for k in 0..b {
-        let centre =
-            (r as f64) * (0.35 + 0.25 * ((k as f64) * 0.11 + seed as f64 * 0.3).sin().abs());
-        for i in 0..r {
-            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            let d = (i as f64 - centre) / 5.0;
-            let v = 210.0 * (-d * d).exp() + (s >> 27) as f64;
-            img[i * b + k] = v.clamp(0.0, 255.0) as u8;
-        }
-    }
-    img
-}
+use epssn::model::Model;
 
 fn main() {
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
@@ -56,22 +38,13 @@ fn main() {
     std::fs::write(out.join("weights.bin"), &blob).unwrap();
     write(&out, "update_key.bin", &update_key(&root));
 
-    let mut ws = Box::new(Workspace::new());
-    let reference = synthetic_image(1);
-    let source = synthetic_image(2);
-    let mut features = vec![0i8; 2 * config::FEATURE_LEN];
-    let mut depth = vec![fixed::types::U16F16::ZERO; config::DEPTH_LEN];
-    model
-        .depth(&[&reference, &source], &mut features, &mut ws, &mut depth)
-        .unwrap();
-    write(&out, "selftest_reference.bin", &reference);
-    write(&out, "selftest_source.bin", &source);
-    let golden: Vec<u8> = depth
-        .iter()
-        .flat_map(|d| d.to_bits().to_le_bytes())
-        .collect();
+    // The golden pair and its depth map's CRC, from the library's one definition
+    // (`epssn::golden`, which `host-sim sign` also runs on an update's blob).
+    let depth = epssn::golden::depth(&model).unwrap();
+    write(&out, "selftest_reference.bin", &epssn::golden::image(1));
+    write(&out, "selftest_source.bin", &epssn::golden::image(2));
     // Only its CRC goes into flash (the target compares CRCs).
-    let crc = epssn::crc32::crc32(&golden);
+    let crc = epssn::golden::depth_crc(&depth);
     write(
         &out,
         "selftest_depth_crc.rs",

@@ -17,7 +17,7 @@ fn key() -> [u8; 32] {
 
 fuzz_target!(|data: &[u8]| {
     let mut mem = vec![0xFFu8; 2 * ERASE_SIZE + 2 * 32 * 1024];
-    let Ok(mut updater) = Updater::open(RamFlash::new(&mut mem)) else {
+    let Ok(mut updater) = Updater::open(RamFlash::new(&mut mem[..])) else {
         panic!("the partition holds two slots");
     };
     let key = key();
@@ -50,7 +50,7 @@ fuzz_target!(|data: &[u8]| {
                     assert!((1..=MAX_CHUNK_LEN).contains(&data.len()));
                     updater.chunk(offset, data, crc).map(|_| ())
                 }
-                Message::Commit { .. } => updater.commit(&key, |_| true).map(|_| ()),
+                Message::Commit { .. } => updater.commit(&key, |_, _| true).map(|_| ()),
                 _ => Ok(()),
             };
             if let Err(e) = result {

@@ -10,6 +10,8 @@ use anyhow::{bail, ensure, Context, Result};
 use epssn::blob::Blob;
 use epssn::config;
 use epssn::crc32::crc32;
+use epssn::golden;
+use epssn::model::Model;
 use epssn_update::image::{self, HEADER_LEN};
 
 /// Options of `host-sim keygen`.
@@ -107,7 +109,18 @@ pub fn sign(o: &SignOptions, out: &mut impl Write) -> Result<()> {
     if let Err(e) = Blob::parse(&blob, spec_hash) {
         bail!("{}: not a weight blob: {e:?}", o.blob.display());
     }
-    let header = image::sign(&secret, o.version, &blob).to_bytes();
+    // The depth map the device's self-test must reproduce with this blob before it serves: of
+    // this build's spec only (a blob of another spec is refused at the commit anyway).
+    let golden = if spec_hash == config::SPEC_HASH {
+        let model = Model::from_blob(&blob)
+            .map_err(|e| anyhow::anyhow!("{}: refused by the model: {e:?}", o.blob.display()))?;
+        let depth = golden::depth(&model)
+            .map_err(|e| anyhow::anyhow!("{}: golden pair: {e:?}", o.blob.display()))?;
+        golden::depth_crc(&depth)
+    } else {
+        0
+    };
+    let header = image::sign(&secret, o.version, golden, &blob).to_bytes();
     let mut img = Vec::with_capacity(HEADER_LEN + blob.len());
     img.extend_from_slice(&header);
     img.extend_from_slice(&blob);
@@ -157,7 +170,10 @@ mod tests {
         let public = read_key(&keys.join("public")).unwrap();
         let h = image::Header::parse(&img, img.len()).unwrap();
         assert_eq!(h.version, 3);
-        let m = image::message(3, &img[HEADER_LEN..]);
+        let m = h.message(&img[HEADER_LEN..]);
+        // The golden CRC is the library's own on the golden pair with this blob.
+        let model = Model::from_blob(&img[HEADER_LEN..]).unwrap();
+        assert_eq!(h.golden, golden::depth_crc(&golden::depth(&model).unwrap()));
         assert!(epssn_update::verify::verify(&public, &m, &h.signature));
         // A corrupt blob is not signed and nothing is written.
         let mut bad = fs::read(&blob).unwrap();

@@ -4,7 +4,10 @@
 //! 0   [u8; 8]   magic "EPSSNUP1"
 //! 8   u32       model version (the rollback counter: a commit needs one above the active)
 //! 12  u32       blob length in bytes
-//! 16  [u8; 16]  reserved, zero
+//! 16  u32       golden CRC: CRC-32 of the depth map this blob computes from the boot
+//!               self-test's golden pair (`epssn::golden`), which the device reproduces
+//!               before the model serves
+//! 20  [u8; 12]  reserved, zero
 //! 32  [u8; 64]  Ed25519 signature of `header[0..32] ‖ SHA-512(blob)`
 //! 96  ..        the blob (`epssn::blob`), 4-byte aligned in the slot like every tensor in it
 //! ```
@@ -44,6 +47,8 @@ pub struct Header {
     pub version: u32,
     /// The blob's length.
     pub blob_len: u32,
+    /// CRC-32 of the golden pair's depth map with this blob (the self-test's expectation).
+    pub golden: u32,
     /// The Ed25519 signature.
     pub signature: [u8; 64],
 }
@@ -58,7 +63,7 @@ impl Header {
     /// Parses the first [`HEADER_LEN`] bytes of `bytes`; `max_blob` bounds the length.
     pub fn parse(bytes: &[u8], max_blob: usize) -> Result<Self, HeaderError> {
         let h = bytes.get(..HEADER_LEN).ok_or(HeaderError::Truncated)?;
-        if h[..8] != MAGIC || h[16..SIGNED_LEN].iter().any(|&b| b != 0) {
+        if h[..8] != MAGIC || h[20..SIGNED_LEN].iter().any(|&b| b != 0) {
             return Err(HeaderError::BadMagic);
         }
         let version = u32_at(h, 8);
@@ -74,6 +79,7 @@ impl Header {
         Ok(Self {
             version,
             blob_len,
+            golden: u32_at(h, 16),
             signature,
         })
     }
@@ -81,9 +87,27 @@ impl Header {
     /// The header's bytes.
     pub fn to_bytes(&self) -> [u8; HEADER_LEN] {
         let mut h = [0u8; HEADER_LEN];
-        h[..SIGNED_LEN].copy_from_slice(&signed_part(self.version, self.blob_len));
+        h[..SIGNED_LEN].copy_from_slice(&self.signed_part());
         h[SIGNED_LEN..].copy_from_slice(&self.signature);
         h
+    }
+
+    /// The first [`SIGNED_LEN`] bytes: what the signature covers of the header.
+    pub fn signed_part(&self) -> [u8; SIGNED_LEN] {
+        let mut h = [0u8; SIGNED_LEN];
+        h[..8].copy_from_slice(&MAGIC);
+        h[8..12].copy_from_slice(&self.version.to_le_bytes());
+        h[12..16].copy_from_slice(&self.blob_len.to_le_bytes());
+        h[16..20].copy_from_slice(&self.golden.to_le_bytes());
+        h
+    }
+
+    /// The message the signature is over: [`Header::signed_part`] and SHA-512 of `blob`.
+    pub fn message(&self, blob: &[u8]) -> [u8; MESSAGE_LEN] {
+        let mut m = [0u8; MESSAGE_LEN];
+        m[..SIGNED_LEN].copy_from_slice(&self.signed_part());
+        m[SIGNED_LEN..].copy_from_slice(&verify::sha512(blob));
+        m
     }
 
     /// Header and blob length: the bytes an upload carries.
@@ -92,32 +116,18 @@ impl Header {
     }
 }
 
-/// The signed first 32 bytes of a header.
-pub fn signed_part(version: u32, blob_len: u32) -> [u8; SIGNED_LEN] {
-    let mut h = [0u8; SIGNED_LEN];
-    h[..8].copy_from_slice(&MAGIC);
-    h[8..12].copy_from_slice(&version.to_le_bytes());
-    h[12..16].copy_from_slice(&blob_len.to_le_bytes());
-    h
-}
-
-/// The header of `blob` as model `version`, signed with the private key `secret` (the host's
-/// `sign`; the device only verifies).
-pub fn sign(secret: &[u8; 32], version: u32, blob: &[u8]) -> Header {
-    Header {
+/// The header of `blob` as model `version` whose golden pair gives a depth map of CRC
+/// `golden`, signed with the private key `secret` (the host's `sign`; the device only
+/// verifies).
+pub fn sign(secret: &[u8; 32], version: u32, golden: u32, blob: &[u8]) -> Header {
+    let mut h = Header {
         version,
         blob_len: u32::try_from(blob.len()).unwrap_or(u32::MAX),
-        signature: verify::sign(secret, &message(version, blob)),
-    }
-}
-
-/// The message the signature is over: [`signed_part`] and SHA-512 of `blob`.
-pub fn message(version: u32, blob: &[u8]) -> [u8; MESSAGE_LEN] {
-    let mut m = [0u8; MESSAGE_LEN];
-    let len = u32::try_from(blob.len()).unwrap_or(u32::MAX);
-    m[..SIGNED_LEN].copy_from_slice(&signed_part(version, len));
-    m[SIGNED_LEN..].copy_from_slice(&verify::sha512(blob));
-    m
+        golden,
+        signature: [0; 64],
+    };
+    h.signature = verify::sign(secret, &h.message(blob));
+    h
 }
 
 #[cfg(test)]
@@ -129,6 +139,7 @@ mod tests {
         let h = Header {
             version: 7,
             blob_len: 100,
+            golden: 0xDEAD_BEEF,
             signature: [3; 64],
         };
         let b = h.to_bytes();
@@ -148,9 +159,16 @@ mod tests {
     #[test]
     fn message_binds_version_length_and_every_blob_byte() {
         let blob = [1u8, 2, 3, 4];
-        let m = message(2, &blob);
-        assert_ne!(m, message(3, &blob));
-        assert_ne!(m, message(2, &[1, 2, 3, 5]));
-        assert_ne!(m, message(2, &blob[..3]));
+        let h = Header {
+            version: 2,
+            blob_len: 4,
+            golden: 9,
+            signature: [0; 64],
+        };
+        let m = h.message(&blob);
+        assert_ne!(m, Header { version: 3, ..h }.message(&blob));
+        assert_ne!(m, Header { golden: 8, ..h }.message(&blob));
+        assert_ne!(m, h.message(&[1, 2, 3, 5]));
+        assert_ne!(m, Header { blob_len: 3, ..h }.message(&blob[..3]));
     }
 }

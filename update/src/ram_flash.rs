@@ -7,6 +7,9 @@
 //! work — a write programs the first half of its bytes and clears only some bits of the next,
 //! an erase erases the first half of its range and leaves one byte beyond half-erased — and it
 //! and every later operation fail with [`Error::PowerLoss`] until [`RamFlash::power_on`].
+//!
+//! The bytes are any [`Memory`]: a slice (`&mut [u8]`, the tests), or a board's RAM region
+//! reached by address (the QEMU boards, whose served blob lies in the same region).
 
 use embedded_storage::nor_flash::{
     check_erase, check_read, check_write, ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError,
@@ -38,24 +41,55 @@ impl NorFlashError for Error {
     }
 }
 
-/// NOR flash semantics over a RAM buffer (a multiple of [`ERASE_SIZE`] bytes).
+/// The RAM under a [`RamFlash`]: read whole, programmed and erased by range.
+pub trait Memory {
+    /// All its bytes.
+    fn bytes(&self) -> &[u8];
+    /// Programs `data` at `at`: each byte becomes `old & new` (in bounds: the caller checked).
+    fn program(&mut self, at: usize, data: &[u8]);
+    /// Sets `range` to 0xFF (in bounds: the caller checked).
+    fn erase(&mut self, range: core::ops::Range<usize>);
+}
+
+impl Memory for &mut [u8] {
+    fn bytes(&self) -> &[u8] {
+        self
+    }
+
+    fn program(&mut self, at: usize, data: &[u8]) {
+        for (m, d) in self[at..at + data.len()].iter_mut().zip(data) {
+            *m &= *d;
+        }
+    }
+
+    fn erase(&mut self, range: core::ops::Range<usize>) {
+        self[range].fill(0xFF);
+    }
+}
+
+/// NOR flash semantics over RAM (a multiple of [`ERASE_SIZE`] bytes).
 #[derive(Debug)]
-pub struct RamFlash<'a> {
-    mem: &'a mut [u8],
+pub struct RamFlash<M> {
+    mem: M,
     ops: u32,
     cut_at: Option<u32>,
     off: bool,
 }
 
-impl<'a> RamFlash<'a> {
+impl<M: Memory> RamFlash<M> {
     /// The flash over `mem`, as it is (erase it first for a blank part).
-    pub fn new(mem: &'a mut [u8]) -> Self {
+    pub fn new(mem: M) -> Self {
         Self {
             mem,
             ops: 0,
             cut_at: None,
             off: false,
         }
+    }
+
+    /// The memory underneath.
+    pub fn memory(&self) -> &M {
+        &self.mem
     }
 
     /// Cuts the power during write or erase number `n` (0 = the next one), counted from now.
@@ -91,11 +125,11 @@ impl<'a> RamFlash<'a> {
     }
 }
 
-impl ErrorType for RamFlash<'_> {
+impl<M> ErrorType for RamFlash<M> {
     type Error = Error;
 }
 
-impl ReadNorFlash for RamFlash<'_> {
+impl<M: Memory> ReadNorFlash for RamFlash<M> {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
@@ -104,16 +138,16 @@ impl ReadNorFlash for RamFlash<'_> {
             return Err(Error::PowerLoss);
         }
         let at = offset as usize;
-        bytes.copy_from_slice(&self.mem[at..at + bytes.len()]);
+        bytes.copy_from_slice(&self.mem.bytes()[at..at + bytes.len()]);
         Ok(())
     }
 
     fn capacity(&self) -> usize {
-        self.mem.len()
+        self.mem.bytes().len()
     }
 }
 
-impl NorFlash for RamFlash<'_> {
+impl<M: Memory> NorFlash for RamFlash<M> {
     const WRITE_SIZE: usize = WRITE_SIZE;
     const ERASE_SIZE: usize = ERASE_SIZE;
 
@@ -122,11 +156,14 @@ impl NorFlash for RamFlash<'_> {
         let (from, to) = (from as usize, to as usize);
         if self.step()? {
             let half = from + (to - from) / 2;
-            self.mem[from..half].fill(0xFF);
-            self.mem[half] |= 0x5A;
+            self.mem.erase(from..half);
+            // One byte beyond half-erased: erasing sets bits, so programming cannot model it.
+            let b = self.mem.bytes()[half];
+            self.mem.erase(half..half + 1);
+            self.mem.program(half, &[b | 0x5A]);
             return Err(Error::PowerLoss);
         }
-        self.mem[from..to].fill(0xFF);
+        self.mem.erase(from..to);
         Ok(())
     }
 
@@ -135,12 +172,10 @@ impl NorFlash for RamFlash<'_> {
         let at = offset as usize;
         let cut = self.step()?;
         let done = if cut { bytes.len() / 2 } else { bytes.len() };
-        for (m, b) in self.mem[at..at + done].iter_mut().zip(bytes) {
-            *m &= *b;
-        }
+        self.mem.program(at, &bytes[..done]);
         if cut {
-            if let (Some(m), Some(b)) = (self.mem.get_mut(at + done), bytes.get(done)) {
-                *m &= *b | 0xA5;
+            if let Some(b) = bytes.get(done) {
+                self.mem.program(at + done, &[*b | 0xA5]);
             }
             return Err(Error::PowerLoss);
         }
@@ -149,11 +184,11 @@ impl NorFlash for RamFlash<'_> {
 }
 
 // Programming ANDs: a location may be written again to clear more bits.
-impl MultiwriteNorFlash for RamFlash<'_> {}
+impl<M: Memory> MultiwriteNorFlash for RamFlash<M> {}
 
-impl MappedFlash for RamFlash<'_> {
+impl<M: Memory> MappedFlash for RamFlash<M> {
     fn mapped(&self) -> &[u8] {
-        self.mem
+        self.mem.bytes()
     }
 }
 
@@ -164,7 +199,7 @@ mod tests {
     #[test]
     fn programs_only_clear_bits_and_erase_sets_them() {
         let mut mem = [0u8; 2 * ERASE_SIZE];
-        let mut f = RamFlash::new(&mut mem);
+        let mut f = RamFlash::new(&mut mem[..]);
         f.erase(0, ERASE_SIZE as u32).unwrap();
         f.write(0, &[0xF0, 0x0F, 0xFF, 0x00]).unwrap();
         f.write(0, &[0x3C, 0xFF, 0xFF, 0xFF]).unwrap();
@@ -176,7 +211,7 @@ mod tests {
     #[test]
     fn a_cut_leaves_part_done_and_silences_the_flash() {
         let mut mem = [0xFFu8; ERASE_SIZE];
-        let mut f = RamFlash::new(&mut mem);
+        let mut f = RamFlash::new(&mut mem[..]);
         f.cut_power_at(1);
         f.write(0, &[0; 8]).unwrap();
         assert_eq!(f.write(8, &[0; 8]), Err(Error::PowerLoss));

@@ -14,7 +14,7 @@ use epssn::blob::Blob;
 use epssn::config;
 use epssn::crc32::crc32;
 
-use crate::image::{self, Header, HeaderError, HEADER_LEN};
+use crate::image::{Header, HeaderError, HEADER_LEN};
 use crate::journal::{self, Record};
 use crate::layout::{BadGeometry, Layout, MAX_WRITE, PAGE};
 use crate::verify::verify;
@@ -135,6 +135,20 @@ impl<F: MappedFlash> Updater<F> {
         }
     }
 
+    /// The active slot's header and where its blob lies in the partition (offsets from its
+    /// start); `None` when the compiled-in model serves. A board that serves the blob in place
+    /// maps this range: the updater never writes or erases the active slot.
+    pub fn active_image(&self) -> Option<(Header, core::ops::Range<usize>)> {
+        match self.active {
+            Active::Factory => None,
+            Active::Slot { slot, .. } => {
+                let (header, _) = self.slot_header(slot as usize)?;
+                let at = self.layout.slot(slot as usize) + HEADER_LEN;
+                Some((header, at..at + header.blob_len as usize))
+            }
+        }
+    }
+
     /// The partition's layout.
     pub fn layout(&self) -> Layout {
         self.layout
@@ -229,11 +243,12 @@ impl<F: MappedFlash> Updater<F> {
 
     /// Checks the held upload and makes it the active model: the whole image held, the blob
     /// (format, CRC, `config::SPEC_HASH`), the signature by `key`, a version above the active
-    /// one, then `self_test` on the blob in place; only then the journal record that switches.
+    /// one, then `self_test` on the blob in place and its header's golden CRC
+    /// ([`Header::golden`]); only then the journal record that switches.
     pub fn commit(
         &mut self,
         key: &[u8; 32],
-        self_test: impl FnOnce(&[u8]) -> bool,
+        self_test: impl FnOnce(&[u8], u32) -> bool,
     ) -> Result<Active, UpdateError> {
         let up = self.upload().ok_or(UpdateError::Incomplete)?;
         if up.held != up.total {
@@ -246,7 +261,7 @@ impl<F: MappedFlash> Updater<F> {
         Blob::parse(blob, config::SPEC_HASH).map_err(UpdateError::Blob)?;
         if !verify(
             key,
-            &image::message(header.version, blob),
+            &header.message(blob),
             &header.signature,
         ) {
             return Err(UpdateError::Signature);
@@ -258,7 +273,7 @@ impl<F: MappedFlash> Updater<F> {
                 offered: header.version,
             });
         }
-        if !self_test(blob) {
+        if !self_test(blob, header.golden) {
             return Err(UpdateError::SelfTest);
         }
         let image_crc = self

@@ -28,18 +28,18 @@ fn key() -> [u8; 32] {
 }
 
 fn signed(secret: &[u8; 32], version: u32, blob: &[u8]) -> Vec<u8> {
-    let mut out = image::sign(secret, version, blob).to_bytes().to_vec();
+    let mut out = image::sign(secret, version, 0, blob).to_bytes().to_vec();
     out.extend_from_slice(blob);
     out
 }
 
 /// The board's self-test stands in as the model's own construction check.
-fn self_test(blob: &[u8]) -> bool {
+fn self_test(blob: &[u8], _golden: u32) -> bool {
     epssn::model::Model::from_blob(blob).is_ok()
 }
 
 /// Sends the image from `from` in chunks; stops at the first error.
-fn upload(u: &mut Updater<RamFlash<'_>>, img: &[u8], from: usize) -> Result<(), UpdateError> {
+fn upload(u: &mut Updater<RamFlash<&mut [u8]>>, img: &[u8], from: usize) -> Result<(), UpdateError> {
     let mut at = from;
     while at < img.len() {
         let end = (at + CHUNK).min(img.len());
@@ -51,7 +51,7 @@ fn upload(u: &mut Updater<RamFlash<'_>>, img: &[u8], from: usize) -> Result<(), 
 }
 
 /// Where a resumed upload starts: what the device holds of this image, else 0.
-fn resume_point(u: &Updater<RamFlash<'_>>, img: &[u8]) -> usize {
+fn resume_point(u: &Updater<RamFlash<&mut [u8]>>, img: &[u8]) -> usize {
     let id = epssn::crc32::crc32(&img[..HEADER_LEN]);
     match u.upload() {
         Some(up) if up.id == id => up.held as usize,
@@ -60,7 +60,7 @@ fn resume_point(u: &Updater<RamFlash<'_>>, img: &[u8]) -> usize {
 }
 
 /// The one active model: its version, with its blob checked against what it must be.
-fn check_active(u: &Updater<RamFlash<'_>>, expect: &[(u32, &[u8])]) -> u32 {
+fn check_active(u: &Updater<RamFlash<&mut [u8]>>, expect: &[(u32, &[u8])]) -> u32 {
     let v = u.active().version();
     let blob = u.active_blob().expect("a slot serves");
     let (_, want) = expect
@@ -97,7 +97,7 @@ fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
     let img = signed(&SECRET, 2, NEW);
     // The clean run: how many operations, and which one writes the journal record.
     let mut mem = base.clone();
-    let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
     let start = u.flash().ops();
     upload(&mut u, &img, 0).unwrap();
     let before_record = u.flash().ops() - start;
@@ -107,7 +107,7 @@ fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
     eprintln!("an update is {total} writes and erases; the power is cut at each");
     for cut in 0..total {
         let mut mem = base.clone();
-        let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+        let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
         u.flash().cut_power_at(cut);
         let r = upload(&mut u, &img, 0).and_then(|()| u.commit(&key(), self_test).map(|_| ()));
         assert!(r.is_err() && u.flash().is_off(), "cut {cut} of {total}");
@@ -141,29 +141,29 @@ fn the_journal_moves_to_its_other_sector_safely() {
     let per_sector = ERASE_SIZE / epssn_update::journal::stride(4);
     let mut version = 1;
     {
-        let mut flash = RamFlash::new(&mut mem);
+        let mut flash = RamFlash::new(&mut mem[..]);
         for _ in 1..per_sector {
             let mut u = Updater::open(flash).unwrap();
             version += 1;
             upload(&mut u, &signed(&SECRET, version, NEW), 0).unwrap();
-            u.commit(&key(), |_| true).unwrap();
+            u.commit(&key(), |_, _| true).unwrap();
             flash = u.into_flash();
         }
     }
     let img = signed(&SECRET, version + 1, NEW);
     let snapshot = mem.clone();
-    let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
     upload(&mut u, &img, 0).unwrap();
     let start = u.flash().ops();
-    u.commit(&key(), |_| true).unwrap();
+    u.commit(&key(), |_, _| true).unwrap();
     let ops = u.flash().ops() - start;
     assert_eq!(ops, 2, "a sector erase, then the record");
     for cut in 0..ops {
         let mut mem = snapshot.clone();
-        let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+        let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
         upload(&mut u, &img, 0).unwrap();
         u.flash().cut_power_at(cut);
-        assert!(u.commit(&key(), |_| true).is_err());
+        assert!(u.commit(&key(), |_, _| true).is_err());
         let mut flash = u.into_flash();
         flash.power_on();
         let mut u = Updater::open(flash).unwrap();
@@ -174,7 +174,7 @@ fn the_journal_moves_to_its_other_sector_safely() {
         );
         assert_eq!(u.active_blob(), Some(NEW));
         assert_eq!(
-            u.commit(&key(), |_| true).map(|a| a.version()),
+            u.commit(&key(), |_, _| true).map(|a| a.version()),
             Ok(version + 1)
         );
         let u = Updater::open(u.into_flash()).unwrap();
@@ -186,7 +186,7 @@ fn the_journal_moves_to_its_other_sector_safely() {
 fn refusals_leave_the_old_model_serving_and_say_why() {
     let mut mem = blank();
     with_v1(&mut mem);
-    let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
     let cases: [(&str, Vec<u8>, UpdateError); 4] = [
         (
             "other key",
@@ -213,7 +213,7 @@ fn refusals_leave_the_old_model_serving_and_say_why() {
     ];
     for (name, img, why) in cases {
         upload(&mut u, &img, 0).unwrap();
-        let test = |_: &[u8]| name != "self-test";
+        let test = |_: &[u8], _: u32| name != "self-test";
         assert_eq!(u.commit(&key(), test), Err(why), "{name}");
         assert_eq!(check_active(&u, &[(1, OLD)]), 1, "{name}");
     }
@@ -261,7 +261,7 @@ fn refusals_leave_the_old_model_serving_and_say_why() {
 fn a_resent_chunk_is_not_written_again_and_a_new_upload_restarts_the_slot() {
     let mut mem = blank();
     with_v1(&mut mem);
-    let mut u = Updater::open(RamFlash::new(&mut mem)).unwrap();
+    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
     let img = signed(&SECRET, 2, NEW);
     upload(&mut u, &img[..2 * CHUNK], 0).unwrap();
     let ops = u.flash().ops();

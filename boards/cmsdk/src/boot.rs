@@ -20,6 +20,7 @@ use epssn_selftest::Stack;
 use fixed::types::U16F16;
 use static_cell::ConstStaticCell;
 
+use crate::update::{BoardUpdates, Sram};
 use crate::{command_line_has, FpgaLed, Uart};
 
 /// Scratch of one inference, in .bss (const-initialised: never built on the stack).
@@ -49,6 +50,12 @@ pub trait Board {
     /// Feeds the watchdog, on a board that has one: at each log line of the self-test and
     /// each pass of the serving loop.
     fn feed(&self) {}
+
+    /// On a board that takes model updates: its update partition (the memory map's `UPDATE`
+    /// region) and the reset that makes a committed model serve.
+    fn update_partition(&self) -> Option<(Sram, fn() -> !)> {
+        None
+    }
 }
 
 /// A QEMU board's CMSDK APB UART 0 at `UART0`, its FPGA IO LED register at `FPGAIO_LED`, and
@@ -160,18 +167,41 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     let ws = WORKSPACE.take();
     let cache = CACHE.take();
     let depth = DEPTH.take();
+    // The model updates (on a board with an update partition) and the blob that serves: the
+    // committed update's, in place in its slot, else the compiled-in one.
+    let feed = || board.feed();
+    let (mut updates, served) = match board
+        .update_partition()
+        .and_then(|(mem, reset)| BoardUpdates::open(mem, &feed, reset))
+    {
+        Some((u, served)) => (Some(u), served),
+        None => (None, None),
+    };
+    let (blob, golden) = served.unwrap_or((
+        epssn_selftest::WEIGHTS,
+        epssn_selftest::SELFTEST_DEPTH_CRC,
+    ));
+    if let Some(u) = &updates {
+        let s = epssn::server::Updates::serving(u);
+        hprintln!("model: version {} (slot {:?})", s.version, s.slot);
+    }
     // One `Model` for the whole run, borrowed below: moving it into an `Option` would keep
     // extra copies of its 2.7 KiB in `run`'s frame for good.
-    let model = Model::from_blob(epssn_selftest::WEIGHTS);
+    let model = Model::from_blob(blob);
     let now = || board.now();
     let self_test_clock = epssn_selftest::Clock {
         now: &now,
         units_per_tick: B::INSTRUCTIONS_PER_TICK,
         unit: "instructions",
     };
-    let failures = epssn_selftest::run(
+    let served = epssn_selftest::Served {
+        blob_len: blob.len(),
+        golden,
+    };
+    let failures = epssn_selftest::run_served(
         &mut log,
         &model,
+        served,
         &self_test_clock,
         &mut led,
         ws,
@@ -204,7 +234,9 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
                 B::IDLE_TICKS,
                 &high_water,
             );
-            let feed = || board.feed();
+            if let Some(u) = updates.as_mut() {
+                server.updates = Some(u);
+            }
             if let Some((cause, fault)) = resets {
                 server.feed = &feed;
                 server.reset = cause;

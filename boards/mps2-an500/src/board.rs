@@ -122,4 +122,18 @@ impl epssn_cmsdk::boot::Board for Mps2An500 {
     fn feed(&self) {
         self.watchdog.feed();
     }
+
+    fn update_partition(&self) -> Option<(epssn_cmsdk::update::Sram, fn() -> !)> {
+        extern "C" {
+            // The memory map's `UPDATE` region (memory.x): RAM that nothing loads.
+            static mut _update_start: u8;
+            static _update_end: u8;
+        }
+        let start = &raw mut _update_start;
+        let len = (&raw const _update_end as usize).saturating_sub(start as usize);
+        // SAFETY: `UPDATE` is a region of the code SRAM that no section is placed in and
+        // nothing but this partition uses; this is called once, at boot.
+        let sram = unsafe { epssn_cmsdk::update::Sram::new(start, len) };
+        Some((sram, cortex_m::peripheral::SCB::sys_reset))
+    }
 }

@@ -30,20 +30,37 @@ pub mod reset;
 mod stack;
 pub use stack::Stack;
 
-/// The weight blob the firmware serves with, checked on the host at build time.
-pub static WEIGHTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin"));
+/// The bytes of the compiled-in blob, 4-byte aligned like a slot's.
+#[repr(C, align(4))]
+struct Aligned<T>(T);
+
+/// The blob's bytes; with `weights-section` in the linker section `.weights`, which the board's
+/// memory map puts in its weight region, outside the image's flash budget (docs/UPDATE.md).
+// Only where the linker puts read-only bytes (the `unsafe_code` lint counts `link_section`).
+#[allow(unsafe_code)]
+#[cfg_attr(feature = "weights-section", link_section = ".weights")]
+static BLOB: Aligned<[u8; include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin")).len()]> =
+    Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/weights.bin")));
+
+/// The weight blob the firmware serves with unless an update serves, checked on the host at
+/// build time.
+pub static WEIGHTS: &[u8] = &BLOB.0;
 /// The public key a model update's signature must verify against (`EPSSN_UPDATE_KEY` at
 /// build time, `build.rs`).
 pub const UPDATE_KEY: [u8; 32] = *include_bytes!(concat!(env!("OUT_DIR"), "/update_key.bin"));
 static SELFTEST_REFERENCE: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/selftest_reference.bin"));
 static SELFTEST_SOURCE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selftest_source.bin"));
-/// CRC-32 of the golden depth map (U16F16 bits, u32 LE): 4 bytes of flash, not the 8 KiB of
-/// the map, and any differing value changes it (a collision is a 2^-32 chance).
-const SELFTEST_DEPTH_CRC: u32 = include!(concat!(env!("OUT_DIR"), "/selftest_depth_crc.rs"));
+/// CRC-32 of the golden depth map (U16F16 bits, u32 LE) of [`WEIGHTS`]: 4 bytes of flash, not
+/// the 8 KiB of the map, and any differing value changes it (a collision is a 2^-32 chance).
+/// An update carries its own in its signed header.
+pub const SELFTEST_DEPTH_CRC: u32 =
+    include!(concat!(env!("OUT_DIR"), "/selftest_depth_crc.rs"));
 
 /// Where the self-test writes its report, one line per call.
 pub type Log<'a> = &'a mut dyn FnMut(Arguments<'_>);
+/// The busy LED, on or off (one copy of the golden test for every pin type: flash).
+type Led<'a> = &'a mut dyn FnMut(bool);
 
 /// The board's free-running counter and what one tick of it is worth.
 pub struct Clock<'a> {
@@ -110,17 +127,19 @@ fn warp_table_mismatches(k: usize) -> usize {
 /// Runs the golden pair through the serving path (feature cache, pairing by roll) and logs
 /// per-layer costs; true when bit-exact.
 #[inline(never)]
+#[allow(clippy::too_many_arguments)]
 fn golden_self_test(
     log: Log<'_>,
     model: &Model<'_>,
     clock: &Clock<'_>,
-    led: &mut impl OutputPin,
+    led: Led<'_>,
     ws: &mut Workspace,
     cache: &mut FeatureCache,
     depth: &mut [U16F16; config::DEPTH_LEN],
+    golden: u32,
 ) -> bool {
     let unit = clock.unit;
-    let _ = led.set_high();
+    led(true);
     let start = clock.now();
     let mut last = start;
     let mut ok = true;
@@ -179,7 +198,7 @@ fn golden_self_test(
         last = clock.now();
     });
     let end = clock.now();
-    let _ = led.set_low();
+    led(false);
     if let Err(e) = r {
         log(format_args!("depth failed: {:?}", e));
         ok = false;
@@ -196,11 +215,11 @@ fn golden_self_test(
         crc.update(&d.to_bits().to_le_bytes());
     }
     let crc = crc.finish();
-    let exact = crc == SELFTEST_DEPTH_CRC;
+    let exact = crc == golden;
     log(format_args!(
         "self-test depth map: CRC-32 {:08x}, x86 library {:08x} ({} values): {}",
         crc,
-        SELFTEST_DEPTH_CRC,
+        golden,
         config::DEPTH_LEN,
         if exact { "bit-exact" } else { "DIFFERS" }
     ));
@@ -228,6 +247,34 @@ pub fn run<E: core::fmt::Debug>(
     cache: &mut FeatureCache,
     depth: &mut [U16F16; config::DEPTH_LEN],
 ) -> u32 {
+    let served = Served {
+        blob_len: WEIGHTS.len(),
+        golden: SELFTEST_DEPTH_CRC,
+    };
+    run_served(log, model, served, clock, led, ws, cache, depth)
+}
+
+/// The blob a board serves, for [`run_served`]: its length and its golden depth map's CRC.
+#[derive(Clone, Copy, Debug)]
+pub struct Served {
+    /// Bytes of the blob.
+    pub blob_len: usize,
+    /// CRC-32 of the depth map it must give for the golden pair.
+    pub golden: u32,
+}
+
+/// [`run`] for a model that may be an update's: `served` says which golden CRC it must give.
+#[allow(clippy::too_many_arguments)]
+pub fn run_served<E: core::fmt::Debug>(
+    log: Log<'_>,
+    model: &Result<Model<'_>, E>,
+    served: Served,
+    clock: &Clock<'_>,
+    led: &mut impl OutputPin,
+    ws: &mut Workspace,
+    cache: &mut FeatureCache,
+    depth: &mut [U16F16; config::DEPTH_LEN],
+) -> u32 {
     let mut failures = 0;
     for k in 1..config::MAX_VIEWS {
         let bad = warp_table_mismatches(k);
@@ -247,9 +294,12 @@ pub fn run<E: core::fmt::Debug>(
         Ok(model) => {
             log(format_args!(
                 "weights: {} bytes, blob verified",
-                WEIGHTS.len()
+                served.blob_len
             ));
-            if !golden_self_test(log, model, clock, led, ws, cache, depth) {
+            let mut led = |on: bool| {
+                let _ = if on { led.set_high() } else { led.set_low() };
+            };
+            if !golden_self_test(log, model, clock, &mut led, ws, cache, depth, served.golden) {
                 failures += 1;
             }
         }
@@ -259,4 +309,36 @@ pub fn run<E: core::fmt::Debug>(
         }
     }
     failures
+}
+
+/// The self-test of an update before it serves: its blob `blob` in place passes the library's
+/// loader, and the golden pair through the serving path gives the depth map of CRC `golden`
+/// (its signed header's). Silent; leaves the cache empty.
+#[inline(never)]
+pub fn check_update(
+    blob: &[u8],
+    golden: u32,
+    ws: &mut Workspace,
+    cache: &mut FeatureCache,
+    depth: &mut [U16F16; config::DEPTH_LEN],
+) -> bool {
+    let Ok(model) = Model::from_blob(blob) else {
+        return false;
+    };
+    let clock = Clock {
+        now: &|| 0,
+        units_per_tick: 0,
+        unit: "",
+    };
+    cache.clear();
+    golden_self_test(
+        &mut |_| {},
+        &model,
+        &clock,
+        &mut |_| {},
+        ws,
+        cache,
+        depth,
+        golden,
+    )
 }
