@@ -170,9 +170,12 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     // The model updates (on a board with an update partition) and the blob that serves: the
     // committed update's, in place in its slot, else the compiled-in one.
     let feed = || board.feed();
+    let now = || board.now();
     let (mut updates, served) = match board
         .update_partition()
-        .and_then(|(mem, reset)| BoardUpdates::open(mem, &feed, reset))
+        .and_then(|(mem, reset)| {
+            BoardUpdates::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
+        })
     {
         Some((u, served)) => (Some(u), served),
         None => (None, None),
@@ -188,7 +191,6 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     // One `Model` for the whole run, borrowed below: moving it into an `Option` would keep
     // extra copies of its 2.7 KiB in `run`'s frame for good.
     let model = Model::from_blob(blob);
-    let now = || board.now();
     let self_test_clock = epssn_selftest::Clock {
         now: &now,
         units_per_tick: B::INSTRUCTIONS_PER_TICK,

@@ -7,6 +7,8 @@
 
 use core::ops::Range;
 
+use cortex_m_semihosting::hprintln;
+
 use epssn::config;
 use epssn::link::{error_text, Held, Serving};
 use epssn::model::Workspace;
@@ -79,6 +81,9 @@ pub struct BoardUpdates<'a> {
     updater: Updater<RamFlash<Sram>>,
     feed: &'a dyn Fn(),
     reset: fn() -> !,
+    /// The board's clock and its instructions per tick: the commit's cost goes to the console.
+    now: &'a dyn Fn() -> u32,
+    instructions_per_tick: u32,
 }
 
 /// The blob that serves and its golden CRC: the active slot's, else the compiled-in one.
@@ -91,6 +96,7 @@ impl<'a> BoardUpdates<'a> {
         mut mem: Sram,
         feed: &'a dyn Fn(),
         reset: fn() -> !,
+        clock: (&'a dyn Fn() -> u32, u32),
     ) -> Option<(Self, Option<ServedBlob>)> {
         if mem.bytes().get(..4) == Some(&[0; 4]) {
             // A journal sector never starts with zeros: a record starts with its magic, and
@@ -109,6 +115,8 @@ impl<'a> BoardUpdates<'a> {
                 updater,
                 feed,
                 reset,
+                now: clock.0,
+                instructions_per_tick: clock.1,
             },
             served,
         ))
@@ -164,15 +172,30 @@ impl Updates for BoardUpdates<'_> {
         depth: &mut [U16F16; config::DEPTH_LEN],
     ) -> Result<Serving, Refusal> {
         (self.feed)();
-        let feed = self.feed;
-        self.updater
-            .commit(&epssn_selftest::UPDATE_KEY, |blob, golden| {
-                // The signature check took its share of the watchdog's period.
-                feed();
-                epssn_selftest::check_update(blob, golden, ws, cache, depth)
-            })
-            .map(serving)
-            .map_err(refusal)
+        let (feed, now) = (self.feed, self.now);
+        let start = now();
+        let checked = core::cell::Cell::new(None);
+        let r = self.updater.commit(&epssn_selftest::UPDATE_KEY, |blob, golden| {
+            checked.set(Some(now()));
+            // The signature check took its share of the watchdog's period.
+            feed();
+            epssn_selftest::check_update(blob, golden, ws, cache, depth)
+        });
+        let end = now();
+        let units = |ticks: u32| ticks.saturating_mul(self.instructions_per_tick);
+        let mid = checked.get().unwrap_or(end);
+        let verdict: &dyn core::fmt::Display = match &r {
+            Ok(_) => &"switching",
+            Err(e) => e,
+        };
+        hprintln!(
+            "update commit: checks {} instructions (blob, signature, version), self-test {} \
+             instructions: {}",
+            units(mid.wrapping_sub(start)),
+            units(end.wrapping_sub(mid)),
+            verdict
+        );
+        r.map(serving).map_err(refusal)
     }
 
     fn switch(&mut self) {

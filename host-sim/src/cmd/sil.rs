@@ -69,6 +69,15 @@ pub struct SilArgs {
     /// every frame streamed and every depth map the device sent back, with its points.
     #[arg(long)]
     pub mcap: Option<PathBuf>,
+    /// A signed update image (docs/UPDATE.md): after the other checks, blobs the device must
+    /// refuse (each with its code), then this one uploaded and committed, and every streamed
+    /// depth map bit-exact with the host library running its blob.
+    #[arg(long)]
+    pub update: Option<PathBuf>,
+    /// With `--update`: resets at this many seeded points of the upload and the commit, after
+    /// each of which the old model (until the commit) must serve bit for bit.
+    #[arg(long, default_value_t = 0, requires = "update")]
+    pub update_faults: usize,
 }
 
 impl From<SilArgs> for SilOptions {
@@ -90,6 +99,8 @@ impl From<SilArgs> for SilOptions {
             baud: a.baud,
             reset_faults: a.reset_faults,
             mcap: a.mcap,
+            update: a.update,
+            update_faults: a.update_faults,
         }
     }
 }

@@ -37,6 +37,8 @@ pub(crate) enum Reply {
         code: u16,
         msg: String,
     },
+    /// What the upload slot holds (`upload`, the reply to `chunk` and `upload?`).
+    Upload(u8, Option<link::Held>),
     /// A reply the host could not decode (the firmware must never send one).
     Garbled(String),
     Other(String),
@@ -73,6 +75,7 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
             code,
             msg: msg.to_string(),
         },
+        Ok(Message::Upload { slot, held, .. }) => Reply::Upload(slot, held),
         Ok(m) => Reply::Other(m.kind().to_string()),
         Err(e) => Reply::Garbled(e.to_string()),
     }
@@ -81,6 +84,8 @@ fn owned(event: Result<Message<'_>, link::DecodeError>) -> Reply {
 /// QEMU running the firmware (or a board on a serial port), its link and the reply reader.
 pub(crate) struct Device {
     qemu: Option<Child>,
+    /// QEMU's QMP socket (`system_reset`), when booted with one.
+    qmp: Option<UnixStream>,
     link: Box<dyn Write + Send>,
     replies: Receiver<Reply>,
     console: Arc<Mutex<Vec<String>>>,
@@ -91,12 +96,28 @@ pub(crate) struct Device {
 impl Device {
     /// Boots `elf` in QEMU on `target`'s board with UART0 on a Unix socket, and connects to it.
     pub(crate) fn boot(elf: &Path, timeout: Duration, target: Target) -> Result<Self> {
+        Self::boot_with(elf, timeout, target, false)
+    }
+
+    /// [`Device::boot`], with a QMP socket for [`Device::reset`] when `resettable`.
+    pub(crate) fn boot_with(
+        elf: &Path,
+        timeout: Duration,
+        target: Target,
+        resettable: bool,
+    ) -> Result<Self> {
         let dir = std::env::temp_dir().join(format!("epssn-sil-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         let sock = dir.join("link.sock");
         let _ = std::fs::remove_file(&sock);
-        let mut qemu = target
-            .qemu()
+        let qmp_sock = dir.join("qmp.sock");
+        let mut qemu = target.qemu();
+        if resettable {
+            let _ = std::fs::remove_file(&qmp_sock);
+            qemu.arg("-qmp")
+                .arg(format!("unix:{},server=on,wait=off", qmp_sock.display()));
+        }
+        let mut qemu = qemu
             .args([
                 "-semihosting-config",
                 "enable=on,target=native,arg=serve",
@@ -155,6 +176,12 @@ impl Device {
         let reader = link.try_clone()?;
         let mut device = Self::over(Box::new(link), Box::new(reader), timeout);
         device.qemu = Some(qemu);
+        if resettable {
+            let mut qmp = UnixStream::connect(&qmp_sock)
+                .with_context(|| format!("QMP socket {}", qmp_sock.display()))?;
+            qmp.write_all(b"{\"execute\":\"qmp_capabilities\"}\n")?;
+            device.qmp = Some(qmp);
+        }
         device.console = console;
         device.dir = dir;
         Ok(device)
@@ -193,12 +220,33 @@ impl Device {
         });
         Self {
             qemu: None,
+            qmp: None,
             link,
             replies,
             console: Arc::new(Mutex::new(Vec::new())),
             dir: PathBuf::new(),
             timeout,
         }
+    }
+
+    /// Resets the emulated board now, as a power cut would (QMP `system_reset`): whatever the
+    /// firmware was doing stops mid-instruction; RAM that nothing loads (the update
+    /// partition) keeps its bytes.
+    pub(crate) fn reset(&mut self) -> Result<()> {
+        let qmp = self
+            .qmp
+            .as_mut()
+            .context("this device cannot be reset (no QMP socket)")?;
+        qmp.write_all(b"{\"execute\":\"system_reset\"}\n")
+            .context("QMP system_reset")
+    }
+
+    /// The console lines so far that contain `word`.
+    pub(crate) fn console_lines(&self, word: &str) -> Vec<String> {
+        self.console
+            .lock()
+            .map(|c| c.iter().filter(|l| l.contains(word)).cloned().collect())
+            .unwrap_or_default()
     }
 
     /// Sends raw bytes (a fault may be any bytes at all).

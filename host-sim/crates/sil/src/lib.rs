@@ -5,7 +5,8 @@
 //!
 //! `sil` orchestrates a run; `faults` generates every fault it sends (the campaign, the soak's
 //! blocks, the fuzz run); both talk to the device through `device` (QEMU or a serial port, the
-//! reply reader, message bytes), which knows neither; `mcap_out` writes `sil --mcap`.
+//! reply reader, message bytes), which knows neither; `mcap_out` writes `sil --mcap`;
+//! `update` is the model update client (`host-sim push`) and `sil --update`'s check.
 
 #![deny(missing_docs)]
 
@@ -18,3 +19,4 @@ pub mod resets;
 pub mod serial;
 pub mod sil;
 pub mod target;
+pub mod update;

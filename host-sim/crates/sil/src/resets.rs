@@ -145,7 +145,7 @@ const FAULTS: [(u16, &str, ResetCause); 3] = [
 ];
 
 /// A new session: hellos until one is answered, then what it said.
-fn hello(
+pub(crate) fn hello(
     device: &mut Device,
     ack: Option<u32>,
 ) -> Result<(epssn::link::Status, Option<ResetCause>, Option<Record>)> {

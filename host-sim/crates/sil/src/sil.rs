@@ -79,6 +79,13 @@ pub struct SilOptions {
     /// Also write what the device returned as an MCAP file of ROS 2 messages (docs/MCAP.md):
     /// every frame streamed and every depth map the device sent back, with its points.
     pub mcap: Option<PathBuf>,
+    /// A signed update image (docs/UPDATE.md): after the other checks, blobs the device must
+    /// refuse (each with its code), then this one uploaded and committed, and every streamed
+    /// depth map bit-exact with the host library running its blob.
+    pub update: Option<PathBuf>,
+    /// With `update`: resets at this many seeded points of the upload and the commit, after
+    /// each of which the old model (until the commit) must serve bit for bit.
+    pub update_faults: usize,
 }
 
 /// What a soak (`--soak N`) adds to the fault campaign's table.
@@ -164,6 +171,8 @@ pub struct SilReport {
     pub soak: Option<SoakReport>,
     /// The provoked resets, with `--reset-faults N`.
     pub resets: Option<crate::resets::ResetReport>,
+    /// The model update, with `--update S`.
+    pub update: Option<crate::update::UpdateReport>,
     /// After the fault campaign: a hello, then frames again, every depth map bit-exact with
     /// the host library (pairs and feature cache included); true without a campaign.
     pub after_faults_bit_exact: bool,
@@ -180,7 +189,7 @@ pub struct SilReport {
 }
 
 /// The weight blob the firmware embeds.
-fn firmware_blob() -> Result<Vec<u8>> {
+pub(crate) fn firmware_blob() -> Result<Vec<u8>> {
     let path = epssn_reference::weights::firmware_blob_path()?;
     std::fs::read(&path).with_context(|| format!("reading weight blob {}", path.display()))
 }
@@ -260,7 +269,7 @@ pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
 }
 
 /// One frame prepared on the host: the link message's content and the expected reply.
-struct HostFrame {
+pub(crate) struct HostFrame {
     /// ARIS FrameTime, µs.
     time_us: u64,
     roll_deg: f32,
@@ -270,7 +279,7 @@ struct HostFrame {
     rejected: Option<epssn::pairing::PairCheck>,
     image: Vec<u8>,
     /// `(reference, sources, depth bits)` when the frame completes a view set.
-    expected: Option<(u32, Vec<u32>, Vec<u32>)>,
+    pub(crate) expected: Option<(u32, Vec<u32>, Vec<u32>)>,
 }
 
 /// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
@@ -287,7 +296,7 @@ fn check_geometry(reader: &Recording) -> Result<()> {
 
 /// Reads the recording, resamples every frame and runs the host library with the same
 /// pairing as the firmware.
-fn prepare_frames(
+pub(crate) fn prepare_frames(
     path: &Path,
     open: &OpenOptions,
     limit: Option<usize>,
@@ -359,7 +368,7 @@ fn prepare_frames(
 }
 
 /// Frames streamed again after the fault campaign (enough for a few depth maps).
-const AFTER_FAULTS_FRAMES: usize = 6;
+pub(crate) const AFTER_FAULTS_FRAMES: usize = 6;
 
 /// The default ELF of the STM32H743 board (`boards/stm32h743`, release).
 fn board_elf() -> PathBuf {
@@ -368,10 +377,10 @@ fn board_elf() -> PathBuf {
 }
 
 /// What streaming frames gave.
-struct Streamed {
-    depth_maps: usize,
-    mismatched: usize,
-    pairs_ok: bool,
+pub(crate) struct Streamed {
+    pub(crate) depth_maps: usize,
+    pub(crate) mismatched: usize,
+    pub(crate) pairs_ok: bool,
     instructions: Vec<u32>,
     pairs: Vec<(u32, Vec<u32>)>,
     /// `(reference, source, reason)` of each pair the device's gate rejected.
@@ -384,7 +393,11 @@ struct Streamed {
 
 /// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
 /// as the host's expectations assume) and checks each reply against the host library.
-fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<Streamed> {
+pub(crate) fn stream(
+    device: &mut Device,
+    frames: &[HostFrame],
+    seq: &mut u32,
+) -> Result<Streamed> {
     let mut depth_maps = 0;
     let mut mismatched = 0;
     let mut pairs_ok = true;
@@ -529,7 +542,7 @@ fn open_device(args: &SilOptions, timeout: Duration) -> Result<(PathBuf, (u64, u
                 )?,
             };
             let sizes = elf_sizes(&elf)?;
-            let device = Device::boot(&elf, timeout, args.target)?;
+            let device = Device::boot_with(&elf, timeout, args.target, args.update_faults > 0)?;
             (elf, sizes, device)
         }
         Some(port) => {
@@ -694,6 +707,21 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
     } else {
         None
     };
+    let update = match &args.update {
+        Some(image) => Some(crate::update::check_update(
+            &mut device,
+            &crate::update::UpdateInput {
+                image,
+                recording: &recording,
+                open: &open,
+                frames: args.frames,
+                old: &frames,
+                faults: args.update_faults,
+                seed: args.seed,
+            },
+        )?),
+        None => None,
+    };
     let (status, shutdown_ok, exited) = close(&mut device, &mut seq)?;
     let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
     let mean = if instructions.is_empty() {
@@ -747,6 +775,7 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
         faults,
         soak: soak_report,
         resets,
+        update,
         alive: shutdown_ok && exited && fuzz_alive,
         budgets,
         budget_violations,
@@ -859,6 +888,9 @@ fn write_text(r: &SilReport, out: &mut impl Write) -> Result<()> {
     if let Some(x) = &r.resets {
         write_resets(x, out)?;
     }
+    if let Some(u) = &r.update {
+        write_update(u, out)?;
+    }
     writeln!(out, "alive: {}", r.alive)?;
     writeln!(
         out,
@@ -961,6 +993,55 @@ fn write_resets(x: &crate::resets::ResetReport, out: &mut impl Write) -> Result<
     Ok(())
 }
 
+/// The model update's lines.
+fn write_update(u: &crate::update::UpdateReport, out: &mut impl Write) -> Result<()> {
+    writeln!(
+        out,
+        "update {} (version {}, {} bytes; {:.1} s): served version {} before; committed to \
+         slot {:?} as version {}; serving {} after the switch: {} of {} depth maps bit-exact \
+         with the new blob: {} ({} differ from the old model's); all as it must be: {}",
+        u.image,
+        u.version,
+        u.image_bytes,
+        u.seconds,
+        u.version_before,
+        u.committed_slot,
+        u.committed_version,
+        u.serving_after,
+        u.depth_maps_after,
+        u.expected_depth_maps_after,
+        u.bit_exact_after,
+        u.maps_differing_from_old,
+        u.ok
+    )?;
+    for c in &u.cases {
+        writeln!(
+            out,
+            "  refused {:<16} code {:?} (expected {}) {:?}; serving version {}: {}",
+            c.name, c.code, c.expected_code, c.msg, c.serving_version, c.ok
+        )?;
+    }
+    for x in &u.resets {
+        writeln!(
+            out,
+            "  reset during {:<6} (after {} chunks, {} ms): held {} B, serving version {}, \
+             {} of {} depth maps bit-exact: {}",
+            x.phase,
+            x.after_chunks,
+            x.delay_ms,
+            x.held_after,
+            x.serving_version,
+            x.depth_maps,
+            x.expected_depth_maps,
+            x.ok
+        )?;
+    }
+    for l in &u.console {
+        writeln!(out, "  device: {l}")?;
+    }
+    Ok(())
+}
+
 /// Fails with the first thing the report says went wrong: the printed report comes first, so
 /// the figures are on screen when the run fails.
 fn verdict(r: &SilReport, args: &SilOptions) -> Result<()> {
@@ -993,6 +1074,11 @@ fn verdict(r: &SilReport, args: &SilOptions) -> Result<()> {
     }
     if r.resets.as_ref().is_some_and(|x| !x.all_ok) {
         bail!("SIL: a provoked reset was not reported, recovered from or bit-exact after");
+    }
+    if r.update.as_ref().is_some_and(|u| !u.ok) {
+        bail!(
+            "SIL: the model update was not refused, reset, committed or served as it must be"
+        );
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");
