@@ -350,11 +350,10 @@ impl<'a> Server<'a> {
                 uart.flush()?;
                 return Ok(true);
             }
-            Ok(m @ (Message::Chunk { .. } | Message::UploadRequest { .. } | Message::Commit { .. }))
-                if self.updates.is_some() =>
-            {
-                self.update(uart, m)?
-            }
+            Ok(
+                m
+                @ (Message::Chunk { .. } | Message::UploadRequest { .. } | Message::Commit { .. }),
+            ) if self.updates.is_some() => self.update(uart, m)?,
             Ok(m) => self.send_error(uart, ErrorCode::Unexpected, &m.kind())?,
         }
         Ok(false)

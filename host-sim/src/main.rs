@@ -51,6 +51,8 @@ enum Command {
     Keygen(cmd::update::KeygenArgs),
     /// Sign a weight blob as a model version: the update image a device takes over the link.
     Sign(cmd::update::SignArgs),
+    /// Upload a signed update image to a device (a board's serial port, or QEMU) and commit it.
+    Push(cmd::update::PushArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +73,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => epssn_eval::eval::run(&args.into()),
         Command::Keygen(args) => host_sim::update::keygen(&args.into(), &mut stdout.lock()),
         Command::Sign(args) => host_sim::update::sign(&args.into(), &mut stdout.lock()),
+        Command::Push(args) => epssn_sil_core::update::push(&args.into(), &mut stdout.lock()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -259,11 +259,7 @@ impl<F: MappedFlash> Updater<F> {
             .slot_header(slot)
             .ok_or(UpdateError::Header(HeaderError::BadMagic))?;
         Blob::parse(blob, config::SPEC_HASH).map_err(UpdateError::Blob)?;
-        if !verify(
-            key,
-            &header.message(blob),
-            &header.signature,
-        ) {
+        if !verify(key, &header.message(blob), &header.signature) {
             return Err(UpdateError::Signature);
         }
         let active = self.active.version();

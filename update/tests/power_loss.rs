@@ -39,7 +39,11 @@ fn self_test(blob: &[u8], _golden: u32) -> bool {
 }
 
 /// Sends the image from `from` in chunks; stops at the first error.
-fn upload(u: &mut Updater<RamFlash<&mut [u8]>>, img: &[u8], from: usize) -> Result<(), UpdateError> {
+fn upload(
+    u: &mut Updater<RamFlash<&mut [u8]>>,
+    img: &[u8],
+    from: usize,
+) -> Result<(), UpdateError> {
     let mut at = from;
     while at < img.len() {
         let end = (at + CHUNK).min(img.len());

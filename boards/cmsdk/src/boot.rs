@@ -171,19 +171,14 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     // committed update's, in place in its slot, else the compiled-in one.
     let feed = || board.feed();
     let now = || board.now();
-    let (mut updates, served) = match board
-        .update_partition()
-        .and_then(|(mem, reset)| {
-            BoardUpdates::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
-        })
-    {
+    let (mut updates, served) = match board.update_partition().and_then(|(mem, reset)| {
+        BoardUpdates::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
+    }) {
         Some((u, served)) => (Some(u), served),
         None => (None, None),
     };
-    let (blob, golden) = served.unwrap_or((
-        epssn_selftest::WEIGHTS,
-        epssn_selftest::SELFTEST_DEPTH_CRC,
-    ));
+    let (blob, golden) =
+        served.unwrap_or((epssn_selftest::WEIGHTS, epssn_selftest::SELFTEST_DEPTH_CRC));
     if let Some(u) = &updates {
         let s = epssn::server::Updates::serving(u);
         hprintln!("model: version {} (slot {:?})", s.version, s.slot);

@@ -175,12 +175,14 @@ impl Updates for BoardUpdates<'_> {
         let (feed, now) = (self.feed, self.now);
         let start = now();
         let checked = core::cell::Cell::new(None);
-        let r = self.updater.commit(&epssn_selftest::UPDATE_KEY, |blob, golden| {
-            checked.set(Some(now()));
-            // The signature check took its share of the watchdog's period.
-            feed();
-            epssn_selftest::check_update(blob, golden, ws, cache, depth)
-        });
+        let r = self
+            .updater
+            .commit(&epssn_selftest::UPDATE_KEY, |blob, golden| {
+                checked.set(Some(now()));
+                // The signature check took its share of the watchdog's period.
+                feed();
+                epssn_selftest::check_update(blob, golden, ws, cache, depth)
+            });
         let end = now();
         let units = |ticks: u32| ticks.saturating_mul(self.instructions_per_tick);
         let mid = checked.get().unwrap_or(end);

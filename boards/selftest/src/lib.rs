@@ -54,8 +54,7 @@ static SELFTEST_SOURCE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/selfte
 /// CRC-32 of the golden depth map (U16F16 bits, u32 LE) of [`WEIGHTS`]: 4 bytes of flash, not
 /// the 8 KiB of the map, and any differing value changes it (a collision is a 2^-32 chance).
 /// An update carries its own in its signed header.
-pub const SELFTEST_DEPTH_CRC: u32 =
-    include!(concat!(env!("OUT_DIR"), "/selftest_depth_crc.rs"));
+pub const SELFTEST_DEPTH_CRC: u32 = include!(concat!(env!("OUT_DIR"), "/selftest_depth_crc.rs"));
 
 /// Where the self-test writes its report, one line per call.
 pub type Log<'a> = &'a mut dyn FnMut(Arguments<'_>);

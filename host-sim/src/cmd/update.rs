@@ -1,7 +1,8 @@
-//! `host-sim keygen` and `host-sim sign`'s command lines.
+//! `host-sim keygen`, `host-sim sign` and `host-sim push`'s command lines.
 
 use std::path::PathBuf;
 
+use epssn_sil_core::update::PushOptions;
 use host_sim::update::{KeygenOptions, SignOptions};
 
 /// Arguments of `host-sim keygen`.
@@ -42,6 +43,42 @@ impl From<SignArgs> for SignOptions {
             blob: a.blob,
             version: a.version,
             out: a.out,
+        }
+    }
+}
+
+/// Arguments of `host-sim push`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct PushArgs {
+    /// The signed update image (`host-sim sign`).
+    #[arg(long)]
+    pub blob: PathBuf,
+    /// A board on this serial port (e.g. `/dev/ttyACM0`).
+    #[arg(long, conflicts_with = "qemu", required_unless_present = "qemu")]
+    pub serial: Option<PathBuf>,
+    /// The Cortex-M7 firmware in QEMU (its partition lives as long as QEMU runs).
+    #[arg(long)]
+    pub qemu: bool,
+    /// The firmware ELF for `--qemu` (default: build it, with `EPSSN_UPDATE_KEY` or the test key).
+    #[arg(long)]
+    pub firmware: Option<PathBuf>,
+    /// The serial port's baud rate (the board's `LINK_BAUD`).
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+    /// Seconds to wait for any one reply.
+    #[arg(long, default_value_t = 120)]
+    pub timeout: u64,
+}
+
+impl From<PushArgs> for PushOptions {
+    fn from(a: PushArgs) -> Self {
+        PushOptions {
+            image: a.blob,
+            serial: a.serial,
+            qemu: a.qemu,
+            firmware: a.firmware,
+            baud: a.baud,
+            timeout: a.timeout,
         }
     }
 }

@@ -155,7 +155,8 @@ pub struct SilReport {
     pub ram_bytes: u64,
     /// Static RAM: .data + .bss + .uninit.
     pub static_ram_bytes: u64,
-    /// Stack high-water mark reported by the firmware, bytes.
+    /// Stack high-water mark reported by the firmware, bytes (with `--update`, the larger of
+    /// the one at the commit and the one at the end).
     pub stack_high_water_bytes: u32,
     /// Status counters at the end: frames, depth maps, errors.
     pub device_frames: u32,
@@ -393,11 +394,7 @@ pub(crate) struct Streamed {
 
 /// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
 /// as the host's expectations assume) and checks each reply against the host library.
-pub(crate) fn stream(
-    device: &mut Device,
-    frames: &[HostFrame],
-    seq: &mut u32,
-) -> Result<Streamed> {
+pub(crate) fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<Streamed> {
     let mut depth_maps = 0;
     let mut mismatched = 0;
     let mut pairs_ok = true;
@@ -729,7 +726,13 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
     } else {
         instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
     };
-    let ram = static_ram + u64::from(status.stack_high_water);
+    // The deepest stack seen: at the end, or at an update's commit (whose switch resets the
+    // board and paints the stack anew).
+    let stack = update
+        .as_ref()
+        .map_or(0, |u| u.stack_high_water_at_commit)
+        .max(status.stack_high_water);
+    let ram = static_ram + u64::from(stack);
     let (budgets, budget_violations) = check_budgets(args, &instructions, ram, flash)?;
     let fuzz_alive = fuzz_report
         .as_ref()
@@ -764,7 +767,7 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
         flash_bytes: flash,
         ram_bytes: ram,
         static_ram_bytes: static_ram,
-        stack_high_water_bytes: status.stack_high_water,
+        stack_high_water_bytes: stack,
         device_frames: status.frames,
         device_depth_maps: status.depth_maps,
         device_errors: status.errors,
@@ -1076,9 +1079,7 @@ fn verdict(r: &SilReport, args: &SilOptions) -> Result<()> {
         bail!("SIL: a provoked reset was not reported, recovered from or bit-exact after");
     }
     if r.update.as_ref().is_some_and(|u| !u.ok) {
-        bail!(
-            "SIL: the model update was not refused, reset, committed or served as it must be"
-        );
+        bail!("SIL: the model update was not refused, reset, committed or served as it must be");
     }
     if !r.alive {
         bail!("SIL: the firmware stopped answering or did not shut down cleanly");

@@ -61,8 +61,13 @@ fn held(device: &mut Device, seq: &mut u32) -> Result<Option<epssn::link::Held>>
 }
 
 /// One chunk of `image` at `off`, with its CRC (or `crc` when given: a corrupt chunk).
-fn send_chunk(device: &mut Device, seq: &mut u32, image: &[u8], off: usize, crc: Option<u32>)
-    -> Result<()> {
+fn send_chunk(
+    device: &mut Device,
+    seq: &mut u32,
+    image: &[u8],
+    off: usize,
+    crc: Option<u32>,
+) -> Result<()> {
     let end = (off + MAX_CHUNK_LEN).min(image.len());
     let data = &image[off..end];
     *seq += 1;
@@ -83,7 +88,9 @@ pub(crate) fn upload(
     image: &[u8],
     limit: Option<usize>,
 ) -> Result<Result<Pushed, Refused>> {
-    let header = image.get(..HEADER_LEN).context("image shorter than its header")?;
+    let header = image
+        .get(..HEADER_LEN)
+        .context("image shorter than its header")?;
     let id = crc32(header);
     let mut off = match held(device, seq)? {
         Some(h) if h.id == id && h.total as usize == image.len() => h.held as usize,
@@ -96,9 +103,7 @@ pub(crate) fn upload(
         chunks += 1;
         match reply_of(device)? {
             Reply::Upload(_, Some(h)) if h.id == id => off = h.held as usize,
-            Reply::Error { code, .. }
-                if code == ErrorCode::UploadConflict.code() && !restarted =>
-            {
+            Reply::Error { code, .. } if code == ErrorCode::UploadConflict.code() && !restarted => {
                 (off, restarted) = (0, true);
             }
             Reply::Error { code, msg } => return Ok(Err(Refused { code, msg })),
@@ -111,12 +116,19 @@ pub(crate) fn upload(
     }))
 }
 
-/// `commit`: the model that serves after it (the device then resets to serve it), or why not.
-pub(crate) fn commit(device: &mut Device, seq: &mut u32) -> Result<Result<Serving, Refused>> {
+/// `commit`: the model that serves after it (the device then resets to serve it) and the
+/// stack high-water mark the reply reports (the commit's self-test included), or why not.
+pub(crate) fn commit(
+    device: &mut Device,
+    seq: &mut u32,
+) -> Result<Result<(Serving, u32), Refused>> {
     *seq += 1;
     device.send_msg(&Message::Commit { seq: *seq })?;
     match reply_of(device)? {
-        Reply::Status(s) => s.model.map(Ok).context("commit: a status without the model"),
+        Reply::Status(s) => s
+            .model
+            .map(|m| Ok((m, s.stack_high_water)))
+            .context("commit: a status without the model"),
         Reply::Error { code, msg } => Ok(Err(Refused { code, msg })),
         other => bail!("commit: unexpected reply {other:?}"),
     }
@@ -125,7 +137,9 @@ pub(crate) fn commit(device: &mut Device, seq: &mut u32) -> Result<Result<Servin
 /// A new session (hellos until one is answered, through any reboot): the model that serves.
 fn serving(device: &mut Device) -> Result<Serving> {
     let (status, _, _) = hello(device, None)?;
-    status.model.context("the device's hello names no model (no update partition?)")
+    status
+        .model
+        .context("the device's hello names no model (no update partition?)")
 }
 
 /// One refusal the SIL provokes.
@@ -141,6 +155,8 @@ pub struct UpdateCase {
     pub msg: String,
     /// The version that served after it: the one before it.
     pub serving_version: u32,
+    /// Wall milliseconds from its commit to the refusal (0: refused before a commit).
+    pub commit_ms: u64,
     /// Refused with the expected code and the old model serving on.
     pub ok: bool,
 }
@@ -202,6 +218,9 @@ pub struct UpdateReport {
     pub bit_exact_after: bool,
     /// Of them, maps that differ from the old model's: the new model serves, not the old.
     pub maps_differing_from_old: usize,
+    /// The stack high-water mark the commit's reply reported, bytes (the commit's signature
+    /// check and self-test included; the switch's reset paints the stack anew).
+    pub stack_high_water_at_commit: u32,
     /// The firmware's console lines about the commit (its cost figures).
     pub console: Vec<String>,
     /// Wall time, seconds.
@@ -229,14 +248,22 @@ pub(crate) struct UpdateInput<'a> {
 }
 
 /// Streams the first `n` frames in a new session: (depth maps, expected, bit-exact).
-fn stream_session(device: &mut Device, frames: &[HostFrame], n: usize) -> Result<(usize, usize, bool)> {
+fn stream_session(
+    device: &mut Device,
+    frames: &[HostFrame],
+    n: usize,
+) -> Result<(usize, usize, bool)> {
     let part = &frames[..n.min(frames.len())];
     // A new session: its frame seqs from 1, its cache empty, as the host's expectations.
     hello(device, None)?;
     let mut seq = 0;
     let s = stream(device, part, &mut seq)?;
     let expected = part.iter().filter(|f| f.expected.is_some()).count();
-    Ok((s.depth_maps, expected, s.pairs_ok && s.mismatched == 0 && s.depth_maps == expected))
+    Ok((
+        s.depth_maps,
+        expected,
+        s.pairs_ok && s.mismatched == 0 && s.depth_maps == expected,
+    ))
 }
 
 /// A blob of another spec than this build's, from weights/.
@@ -244,7 +271,9 @@ fn other_spec_blob() -> Result<Vec<u8>> {
     let weights = epssn_spec::load::repo_root().join("weights");
     for name in ["paper/epssn-p.q8.bin", "general/epssn-s.q8.bin"] {
         let bytes = std::fs::read(weights.join(name))?;
-        let hash = bytes.get(12..16).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        let hash = bytes
+            .get(12..16)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
         if hash.is_some_and(|h| h != config::SPEC_HASH) {
             return Ok(bytes);
         }
@@ -256,7 +285,9 @@ fn other_spec_blob() -> Result<Vec<u8>> {
 fn signed_by_other(seed: u64, version: u32, golden: u32, blob: &[u8]) -> Vec<u8> {
     let mut rng = Rng::new(seed ^ 0x07e4_5eed_0f0e_4e75);
     let secret: [u8; 32] = core::array::from_fn(|_| rng.next_u64() as u8);
-    let mut img = image::sign(&secret, version, golden, blob).to_bytes().to_vec();
+    let mut img = image::sign(&secret, version, golden, blob)
+        .to_bytes()
+        .to_vec();
     img.extend_from_slice(blob);
     img
 }
@@ -272,6 +303,7 @@ fn refusal(
 ) -> Result<UpdateCase> {
     let before = serving(device)?.version;
     let mut seq = 0;
+    let mut commit_ms = 0;
     let refused = if corrupt {
         // The first chunk with one byte flipped after its CRC was taken.
         let mut bad = img.to_vec();
@@ -285,7 +317,12 @@ fn refusal(
     } else {
         match upload(device, &mut seq, img, None)? {
             Err(r) => Some(r),
-            Ok(_) => commit(device, &mut seq)?.err(),
+            Ok(_) => {
+                let t = Instant::now();
+                let r = commit(device, &mut seq)?.err();
+                commit_ms = t.elapsed().as_millis() as u64;
+                r
+            }
         }
     };
     let after = serving(device)?.version;
@@ -296,6 +333,7 @@ fn refusal(
         code,
         msg: refused.map(|r| r.msg).unwrap_or_default(),
         serving_version: after,
+        commit_ms,
         ok: code == Some(expected.code()) && after == before,
     })
 }
@@ -303,34 +341,39 @@ fn refusal(
 /// Frames streamed after each reset (enough for a few depth maps).
 const CHECK_FRAMES: usize = 4;
 
-/// One reset at a seeded point: during the upload (after a seeded number of chunks, as the
-/// next one is written) or during the commit's checks (after a seeded delay). Then the model
-/// the reboot's hello names must give every depth map bit for bit: the old one, or after a
-/// commit's reset, the new one if the switch was done.
+/// Where a seeded reset falls: during the upload, after this many chunks answered (as the
+/// next one is written), or during the commit, this many milliseconds after it was sent.
+#[derive(Clone, Copy, Debug)]
+enum Point {
+    Upload(usize),
+    Commit(u64),
+}
+
+/// One reset at a seeded point. Then the model the reboot's hello names must give every
+/// depth map bit for bit: the old one, or after a commit's reset, the new one if the switch
+/// was done before it.
 fn reset_at(
     device: &mut Device,
-    rng: &mut Rng,
+    point: Point,
     img: &[u8],
-    old: &[HostFrame],
-    new: &[HostFrame],
+    (old, new): (&[HostFrame], &[HostFrame]),
     old_version: u32,
     new_version: u32,
 ) -> Result<UpdateReset> {
     let mut seq = 0;
     serving(device)?;
-    let chunks_total = img.len().div_ceil(MAX_CHUNK_LEN);
-    let during_commit = rng.below(3) == 0;
+    let during_commit = matches!(point, Point::Commit(_));
     let (mut after_chunks, mut delay_ms) = (0, 0);
-    if during_commit {
+    if let Point::Commit(delay) = point {
         if let Err(r) = upload(device, &mut seq, img, None)? {
             bail!("upload before the commit's reset refused: {r:?}");
         }
-        delay_ms = rng.below(400) as u64;
+        delay_ms = delay;
         seq += 1;
         device.send_msg(&Message::Commit { seq })?;
         std::thread::sleep(Duration::from_millis(delay_ms));
-    } else {
-        after_chunks = rng.below(chunks_total);
+    } else if let Point::Upload(k) = point {
+        after_chunks = k;
         if let Err(r) = upload(device, &mut seq, img, Some(after_chunks))? {
             bail!("upload before a reset refused: {r:?}");
         }
@@ -360,37 +403,104 @@ fn reset_at(
     })
 }
 
+/// The seeded resets of `--update-faults N`: the first half during the upload (at seeded
+/// chunk counts: each resumes from what the device holds), the rest during the commit, after
+/// a seeded delay of up to a few times `check_ms` (the wall time of a refused commit's checks,
+/// a fraction of a whole commit's): mostly before the switch. Once a reset finds the new
+/// model serving, the switch is done and no commit is left to cut: the rest are not made.
+#[allow(clippy::too_many_arguments)]
+fn seeded_resets(
+    device: &mut Device,
+    input: &UpdateInput<'_>,
+    img: &[u8],
+    new: &[HostFrame],
+    old_version: u32,
+    new_version: u32,
+    check_ms: u64,
+) -> Result<Vec<UpdateReset>> {
+    let mut rng = Rng::new(input.seed);
+    let chunks = img.len().div_ceil(MAX_CHUNK_LEN);
+    let mut resets: Vec<UpdateReset> = Vec::new();
+    for i in 0..input.faults {
+        if resets
+            .last()
+            .is_some_and(|r| r.serving_version == new_version)
+        {
+            break;
+        }
+        let point = if i < input.faults.div_ceil(2) {
+            Point::Upload(rng.below(chunks))
+        } else {
+            Point::Commit(rng.below(3 * check_ms.max(1) as usize) as u64)
+        };
+        let frames = (input.old, new);
+        resets.push(reset_at(
+            device,
+            point,
+            img,
+            frames,
+            old_version,
+            new_version,
+        )?);
+    }
+    Ok(resets)
+}
+
 /// `sil --update`: refusals, seeded resets, the update, every map after it bit-exact.
 pub(crate) fn check_update(device: &mut Device, input: &UpdateInput<'_>) -> Result<UpdateReport> {
     let start = Instant::now();
-    let img = std::fs::read(input.image)
-        .with_context(|| format!("reading {}", input.image.display()))?;
-    let header = Header::parse(&img, img.len()).map_err(|e| anyhow::anyhow!("{}: {e:?}", input.image.display()))?;
+    let img =
+        std::fs::read(input.image).with_context(|| format!("reading {}", input.image.display()))?;
+    let header = Header::parse(&img, img.len())
+        .map_err(|e| anyhow::anyhow!("{}: {e:?}", input.image.display()))?;
     let blob = &img[HEADER_LEN..];
     let new = prepare_frames(input.recording, input.open, input.frames, blob)
         .context("the host library on the update's blob")?;
     let before = serving(device)?.version;
+    // The refused commit of another key's signature runs the commit's checks whole: its
+    // wall time scales the seeded delays of the resets during the commit.
+    let other_key = refusal(
+        device,
+        "other_key",
+        &signed_by_other(input.seed, header.version, header.golden, blob),
+        false,
+        ErrorCode::UpdateSignature,
+    )?;
+    let commit_ms = other_key.commit_ms;
     let mut cases = vec![
-        refusal(device, "other_key", &signed_by_other(input.seed, header.version, header.golden, blob), false, ErrorCode::UpdateSignature)?,
-        refusal(device, "other_spec", &signed_by_other(input.seed, header.version, 0, &other_spec_blob()?), false, ErrorCode::UpdateSpec)?,
+        other_key,
+        refusal(
+            device,
+            "other_spec",
+            &signed_by_other(input.seed, header.version, 0, &other_spec_blob()?),
+            false,
+            ErrorCode::UpdateSpec,
+        )?,
         refusal(device, "corrupted_chunk", &img, true, ErrorCode::UploadCrc)?,
     ];
-    let mut rng = Rng::new(input.seed);
-    let mut resets = Vec::new();
-    for _ in 0..input.faults {
-        resets.push(reset_at(device, &mut rng, &img, input.old, &new, before, header.version)?);
-    }
+    let resets = seeded_resets(device, input, &img, &new, before, header.version, commit_ms)?;
     let mut seq = 0;
     let mut committed = serving(device)?;
-    let mut pushed = Pushed { resumed_from: img.len() as u32, chunks: 0 };
+    let mut pushed = Pushed {
+        resumed_from: img.len() as u32,
+        chunks: 0,
+    };
+    let mut stack_at_commit = 0;
     if committed.version != header.version {
         pushed = match upload(device, &mut seq, &img, None)? {
             Ok(p) => p,
             Err(r) => bail!("the update's upload was refused: {r:?}"),
         };
         committed = match commit(device, &mut seq)? {
-            Ok(s) => s,
-            Err(r) => bail!("the update was refused at the commit: code {} ({})", r.code, r.msg),
+            Ok((s, stack)) => {
+                stack_at_commit = stack;
+                s
+            }
+            Err(r) => bail!(
+                "the update was refused at the commit: code {} ({})",
+                r.code,
+                r.msg
+            ),
         };
     }
     // The switch resets the device; its next hello names the model that serves.
@@ -401,7 +511,13 @@ pub(crate) fn check_update(device: &mut Device, input: &UpdateInput<'_>) -> Resu
         .zip(input.old)
         .filter(|(n, o)| n.expected.is_some() && n.expected != o.expected)
         .count();
-    cases.push(refusal(device, "older_version", &img, false, ErrorCode::UpdateVersion)?);
+    cases.push(refusal(
+        device,
+        "older_version",
+        &img,
+        false,
+        ErrorCode::UpdateVersion,
+    )?);
     let ok = cases.iter().all(|c| c.ok)
         && resets.iter().all(|r| r.ok)
         && committed.version == header.version
@@ -424,8 +540,89 @@ pub(crate) fn check_update(device: &mut Device, input: &UpdateInput<'_>) -> Resu
         expected_depth_maps_after: expected,
         bit_exact_after: exact,
         maps_differing_from_old: differing,
+        stack_high_water_at_commit: stack_at_commit,
         console: device.console_lines("update"),
         seconds: start.elapsed().as_secs_f64(),
         ok,
     })
+}
+
+/// Options of `host-sim push`.
+#[derive(Debug, Clone)]
+pub struct PushOptions {
+    /// The signed update image (`host-sim sign`).
+    pub image: std::path::PathBuf,
+    /// A board on this serial port.
+    pub serial: Option<std::path::PathBuf>,
+    /// Or the Cortex-M7 firmware in QEMU (built unless `firmware` names an ELF).
+    pub qemu: bool,
+    /// The firmware ELF for `qemu`.
+    pub firmware: Option<std::path::PathBuf>,
+    /// The serial port's baud rate.
+    pub baud: u32,
+    /// Seconds to wait for any one reply.
+    pub timeout: u64,
+}
+
+/// `host-sim push`: uploads the image from what the device holds of it, commits it, and
+/// reads back, after the device restarts, which model serves.
+pub fn push(o: &PushOptions, out: &mut impl std::io::Write) -> Result<()> {
+    let img = std::fs::read(&o.image).with_context(|| format!("reading {}", o.image.display()))?;
+    let header = Header::parse(&img, img.len())
+        .map_err(|e| anyhow::anyhow!("{}: not an update image: {e:?}", o.image.display()))?;
+    anyhow::ensure!(
+        img.len() == header.image_len(),
+        "{}: {} bytes, its header says {}",
+        o.image.display(),
+        img.len(),
+        header.image_len()
+    );
+    let timeout = Duration::from_secs(o.timeout);
+    let mut device = match (&o.serial, o.qemu) {
+        (Some(port), false) => Device::serial(port, o.baud, timeout)?,
+        (None, true) => {
+            let elf = match &o.firmware {
+                Some(p) => p.clone(),
+                None => crate::sil::build_firmware()?,
+            };
+            Device::boot(&elf, timeout, crate::target::Target::M7)?
+        }
+        _ => bail!("push needs one of --serial PORT and --qemu"),
+    };
+    let before = serving(&mut device)?;
+    writeln!(
+        out,
+        "device serves version {} (slot {:?})",
+        before.version, before.slot
+    )?;
+    let mut seq = 0;
+    let pushed = upload(&mut device, &mut seq, &img, None)?
+        .map_err(|r| anyhow::anyhow!("upload refused: code {} ({})", r.code, r.msg))?;
+    writeln!(
+        out,
+        "uploaded {} bytes from offset {} in {} chunks",
+        img.len() as u32 - pushed.resumed_from,
+        pushed.resumed_from,
+        pushed.chunks
+    )?;
+    let (committed, _) = commit(&mut device, &mut seq)?
+        .map_err(|r| anyhow::anyhow!("commit refused: code {} ({})", r.code, r.msg))?;
+    writeln!(
+        out,
+        "committed version {} to slot {:?}; the device restarts to serve it",
+        committed.version, committed.slot
+    )?;
+    let after = serving(&mut device)?;
+    writeln!(
+        out,
+        "device serves version {} (slot {:?})",
+        after.version, after.slot
+    )?;
+    anyhow::ensure!(
+        after.version == header.version,
+        "the device serves version {}, not {}",
+        after.version,
+        header.version
+    );
+    Ok(())
 }
