@@ -91,6 +91,18 @@ step "software in the loop: firmware in QEMU vs the host library, bit for bit"
 host_sim="$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/debug/host-sim"
 "$host_sim" sil --json
 
+step "model updates over the link (docs/UPDATE.md): a key pair made here, site-tank's blob signed with it"
+# The SIL's firmware build, relinked with this key (only the crates that embed it rebuild); the
+# blobs it must refuse by name, resets during the upload and the commit (the old model serves
+# bit-exact until the switch), then every streamed map bit-exact with site-tank's blob.
+update_dir=$(mktemp -d)
+"$host_sim" keygen --out "$update_dir/keys"
+"$host_sim" sign --key "$update_dir/keys/private" --blob weights/site-tank/epssn-s.q8.bin \
+    --version 1 --out "$update_dir/site-tank.signed"
+EPSSN_UPDATE_KEY="$update_dir/keys/public" "$host_sim" sil --faults 0 \
+    --update "$update_dir/site-tank.signed" --update-faults 4 --json
+rm -rf "$update_dir"
+
 step "device resets in QEMU: watchdog on a hang, fault record on a panic and a stack overflow"
 # A test build of the firmware (feature reset-faults, its own target directory) hangs, panics
 # and overflows its stack on request; each reset's cause and record must come back in the next
