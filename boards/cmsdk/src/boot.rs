@@ -20,6 +20,7 @@ use epssn_selftest::Stack;
 use fixed::types::U16F16;
 use static_cell::ConstStaticCell;
 
+#[cfg(feature = "updates")]
 use crate::update::{BoardUpdates, Sram};
 use crate::{command_line_has, FpgaLed, Uart};
 
@@ -51,8 +52,9 @@ pub trait Board {
     /// each pass of the serving loop.
     fn feed(&self) {}
 
-    /// On a board that takes model updates: its update partition (the memory map's `UPDATE`
-    /// region) and the reset that makes a committed model serve.
+    /// On a board that takes model updates (feature `updates`): its update partition (the
+    /// memory map's `UPDATE` region) and the reset that makes a committed model serve.
+    #[cfg(feature = "updates")]
     fn update_partition(&self) -> Option<(Sram, fn() -> !)> {
         None
     }
@@ -167,18 +169,22 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     let ws = WORKSPACE.take();
     let cache = CACHE.take();
     let depth = DEPTH.take();
-    // The model updates (on a board with an update partition) and the blob that serves: the
-    // committed update's, in place in its slot, else the compiled-in one.
+    // The model updates (feature `updates`, on a board with an update partition) and the blob
+    // that serves: the committed update's, in place in its slot, else the compiled-in one.
     let feed = || board.feed();
     let now = || board.now();
+    #[cfg(feature = "updates")]
     let (mut updates, served) = match board.update_partition().and_then(|(mem, reset)| {
         BoardUpdates::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
     }) {
         Some((u, served)) => (Some(u), served),
         None => (None, None),
     };
+    #[cfg(not(feature = "updates"))]
+    let served: Option<(&[u8], u32)> = None;
     let (blob, golden) =
         served.unwrap_or((epssn_selftest::WEIGHTS, epssn_selftest::SELFTEST_DEPTH_CRC));
+    #[cfg(feature = "updates")]
     if let Some(u) = &updates {
         let s = epssn::server::Updates::serving(u);
         hprintln!("model: version {} (slot {:?})", s.version, s.slot);
@@ -231,6 +237,7 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
                 B::IDLE_TICKS,
                 &high_water,
             );
+            #[cfg(feature = "updates")]
             if let Some(u) = updates.as_mut() {
                 server.updates = Some(u);
             }

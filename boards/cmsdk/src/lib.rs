@@ -11,6 +11,7 @@
 #![deny(unsafe_op_in_unsafe_fn)]
 
 pub mod boot;
+#[cfg(feature = "updates")]
 pub mod update;
 
 use core::ptr::{read_volatile, write_volatile};
