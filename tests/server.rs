@@ -829,3 +829,140 @@ fn a_hello_carrying_a_record_sent_to_the_device_is_unexpected() {
         vec![Reply::Error(ErrorCode::Unexpected.code()), status(0, 0, 1)]
     );
 }
+
+/// A board's model updates, recorded: what the server hands it and what it answers.
+#[derive(Default)]
+struct MockUpdates {
+    /// Offsets of the chunks taken.
+    chunks: Vec<u32>,
+    commits: u32,
+    switches: u32,
+    serving: epssn::link::Serving,
+}
+
+impl epssn::server::Updates for MockUpdates {
+    fn serving(&self) -> epssn::link::Serving {
+        self.serving
+    }
+
+    fn held(&self) -> (u8, Option<epssn::link::Held>) {
+        let held = self.chunks.last().map(|&off| epssn::link::Held {
+            id: 7,
+            version: 2,
+            total: 5000,
+            held: off + 1024,
+        });
+        (1, held)
+    }
+
+    fn chunk(&mut self, offset: u32, data: &[u8], crc: u32) -> Result<(), epssn::server::Refusal> {
+        if epssn::crc32::crc32(data) != crc {
+            return Err(epssn::server::Refusal {
+                code: ErrorCode::UploadCrc,
+                text: epssn::link::error_text(&"chunk crc"),
+            });
+        }
+        self.chunks.push(offset);
+        Ok(())
+    }
+
+    fn commit(
+        &mut self,
+        _: &mut Workspace,
+        _: &mut FeatureCache,
+        _: &mut [U16F16; config::DEPTH_LEN],
+    ) -> Result<epssn::link::Serving, epssn::server::Refusal> {
+        self.commits += 1;
+        self.serving = epssn::link::Serving {
+            slot: Some(1),
+            version: 2,
+        };
+        Ok(self.serving)
+    }
+
+    fn switch(&mut self) {
+        self.switches += 1;
+    }
+}
+
+#[test]
+fn update_messages_go_to_the_boards_updates_and_hello_names_the_model() {
+    let blob = blob();
+    let model = Model::from_blob(&blob).unwrap();
+    let mut ws = Box::new(Workspace::new());
+    let mut cache = Box::new(FeatureCache::new());
+    let mut depth = Box::new([U16F16::ZERO; config::DEPTH_LEN]);
+    let mut decoder = Box::new(Decoder::new());
+    let (now, high_water) = (|| 0, || 0);
+    let mut updates = MockUpdates::default();
+    let mut server = Server::new(
+        &model,
+        &mut ws,
+        &mut cache,
+        &mut depth,
+        &now,
+        1,
+        1_000_000,
+        &high_water,
+    );
+    server.updates = Some(&mut updates);
+    let data = [5u8; 1024];
+    let crc = epssn::crc32::crc32(&data);
+    let chunk = |seq, crc| Message::Chunk {
+        seq,
+        offset: 0,
+        crc,
+        data: &data,
+    };
+    let input = wire(&[
+        Message::hello(0),
+        Message::UploadRequest { seq: 1 },
+        chunk(2, crc ^ 1),
+        chunk(3, crc),
+        Message::Commit { seq: 4 },
+        Message::hello(0),
+        Message::Shutdown { seq: 1 },
+    ]);
+    let mut serial = MockSerial::new(input);
+    server
+        .serve(&mut serial, &mut MockPin::default(), &mut decoder)
+        .unwrap();
+    drop(server);
+    let mut d = Decoder::new();
+    let mut got = Vec::new();
+    for &b in &serial.tx {
+        d.push(b);
+        while let Some(m) = d.poll() {
+            got.push(match m.unwrap() {
+                Message::Hello {
+                    status: Some(s), ..
+                } => format!("hello {:?}", s.model),
+                Message::Upload { slot, held, .. } => {
+                    format!("upload {slot} {:?}", held.map(|h| h.held))
+                }
+                Message::Error { code, .. } => format!("error {code}"),
+                Message::Status { status, .. } => format!("status {:?}", status.model),
+                m => panic!("unexpected reply {m:?}"),
+            });
+        }
+    }
+    let old = Some(epssn::link::Serving::default());
+    let new = Some(epssn::link::Serving {
+        slot: Some(1),
+        version: 2,
+    });
+    assert_eq!(
+        got,
+        [
+            format!("hello {old:?}"),
+            "upload 1 None".into(),
+            format!("error {}", ErrorCode::UploadCrc.code()),
+            "upload 1 Some(1024)".into(),
+            format!("status {new:?}"),
+            format!("hello {new:?}"),
+            "status None".into(),
+        ]
+    );
+    assert_eq!(updates.chunks, [0]);
+    assert_eq!((updates.commits, updates.switches), (1, 1));
+}
