@@ -927,7 +927,6 @@ fn update_messages_go_to_the_boards_updates_and_hello_names_the_model() {
     server
         .serve(&mut serial, &mut MockPin::default(), &mut decoder)
         .unwrap();
-    drop(server);
     let mut d = Decoder::new();
     let mut got = Vec::new();
     for &b in &serial.tx {
