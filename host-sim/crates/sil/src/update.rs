@@ -1,6 +1,6 @@
 //! Model updates over the link, host side (docs/UPDATE.md): the upload and commit client that
-//! `host-sim push` and `host-sim sil --update` share ([`upload`], [`commit`]), and the SIL's
-//! update check ([`check_update`]): blobs the device must refuse, each with its code, while
+//! `host-sim push` and `host-sim sil --update` share (`upload`, `commit`), and the SIL's
+//! update check (`check_update`): blobs the device must refuse, each with its code, while
 //! the old model serves on; resets at seeded points of the upload and the commit, after each
 //! of which the model that serves (the old one until the commit) must give every depth map
 //! bit for bit; then the commit, the switch, and every streamed map bit-exact with the host
