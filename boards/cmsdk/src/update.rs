@@ -100,9 +100,12 @@ impl<'a> BoardUpdates<'a> {
     ) -> Option<(Self, Option<ServedBlob>)> {
         if mem.bytes().get(..4) == Some(&[0; 4]) {
             // A journal sector never starts with zeros: a record starts with its magic, and
-            // an erase leaves 0xFF.
-            let len = mem.len;
-            mem.erase(0..len);
+            // an erase leaves 0xFF. Erased from the last sector to the first, so a reset
+            // during it leaves the first word zero and the next boot erases again.
+            let sector = epssn_update::ram_flash::ERASE_SIZE;
+            for s in (0..mem.len / sector).rev() {
+                mem.erase(s * sector..(s + 1) * sector);
+            }
         }
         let mut updater = Updater::open(RamFlash::new(mem)).ok()?;
         let active: Option<(Header, Range<usize>)> = updater.active_image();
