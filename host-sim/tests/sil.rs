@@ -313,4 +313,44 @@ fn a_bag_topic_is_chosen_by_name() {
     assert!(err.contains("/c"), "{err}");
     let err = refusal(Some("/b"));
     assert!(err.contains("geometry does not fit the model"), "{err}");
+
+/// `host-sim push --qemu`: site-tank's blob signed with the test key (the key the test builds
+/// of the firmware carry) is uploaded, committed, and after the device restarts its hello
+/// names it.
+#[test]
+fn push_over_qemu_makes_the_signed_model_serve() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let image = dir.path().join("site-tank.signed");
+    let signed = host_sim()
+        .args(["sign", "--key"])
+        .arg(root.join("update/test-key/private"))
+        .arg("--blob")
+        .arg(root.join("weights/site-tank/epssn-s.q8.bin"))
+        .args(["--version", "1", "--out"])
+        .arg(&image)
+        .output()
+        .expect("run host-sim sign");
+    assert!(signed.status.success(), "{signed:?}");
+    let out = host_sim()
+        .args(["push", "--qemu", "--blob"])
+        .arg(&image)
+        .output()
+        .expect("run host-sim push");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "host-sim push failed: {stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.first(), Some(&"device serves version 0 (slot None)"));
+    assert!(
+        lines.contains(&"uploaded 23848 bytes from offset 0 in 6 chunks"),
+        "{stdout}"
+    );
+    assert_eq!(
+        lines.last(),
+        Some(&"device serves version 1 (slot Some(0))")
+    );
 }
