@@ -313,6 +313,7 @@ fn a_bag_topic_is_chosen_by_name() {
     assert!(err.contains("/c"), "{err}");
     let err = refusal(Some("/b"));
     assert!(err.contains("geometry does not fit the model"), "{err}");
+}
 
 /// `host-sim push --qemu`: site-tank's blob signed with the test key (the key the test builds
 /// of the firmware carry) is uploaded, committed, and after the device restarts its hello
