@@ -16,8 +16,8 @@ pub enum UpdateError {
     /// A chunk not on a page, past the image, short of a page before the end, or beyond
     /// what is held (resume from [`Upload::held`](crate::Upload::held)); or a chunk after 0 with no upload begun.
     ChunkRange,
-    /// The slot held bytes that neither equal nor can become the chunk (a different upload
-    /// cut short): it was erased, resend from offset 0.
+    /// The slot held bytes where the chunk goes that are neither the chunk's nor erased
+    /// (another upload's): it was erased, resend from offset 0.
     Conflict,
     /// The image header of the chunk at offset 0 was refused.
     Header(HeaderError),

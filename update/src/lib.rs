@@ -10,8 +10,10 @@
 //! sectors ([`journal`]) and two slots with per-page progress marks. A power loss at any
 //! write or erase leaves exactly one valid active model, and [`Updater::open`] after it finds
 //! that model and how much of the upload is held (the tests cut the power at every write and
-//! erase of an upload and a commit). [`RamFlash`] is NOR flash in RAM with power loss on
-//! demand: the QEMU boards' partition and the tests' flash.
+//! erase of an upload and a commit). Each write unit is programmed at most once between
+//! erases, so ECC flash that allows no second program (the STM32H7's) serves as well as NOR
+//! flash that does. [`RamFlash`] is NOR flash in RAM with power loss on demand, and ECC flash
+//! in RAM in its write-once mode: the QEMU boards' partition and the tests' flash.
 
 #![no_std]
 #![forbid(unsafe_code)]
@@ -30,8 +32,9 @@ pub use updater::{Active, UpdateError, Updater, Upload};
 
 /// A NorFlash whose contents can also be read in place: memory-mapped flash (the STM32H7's
 /// bank 2) or RAM ([`RamFlash`]). The blob is checked, hashed and served from there, never
-/// copied; writes that only clear more bits (a page a reset cut short) must be allowed.
-pub trait MappedFlash: embedded_storage::nor_flash::MultiwriteNorFlash {
+/// copied. The updater programs no write unit twice between erases, so the flash need not
+/// allow it (no `MultiwriteNorFlash`).
+pub trait MappedFlash: embedded_storage::nor_flash::NorFlash {
     /// The partition's bytes.
     fn mapped(&self) -> &[u8];
 }

@@ -2,18 +2,24 @@
 //! partition of the QEMU boards, and the flash of the host tests.
 //!
 //! Erase sets whole sectors to 0xFF; a write can only clear bits (the stored byte becomes
-//! `old & new`, as programming NOR does; hence [`MultiwriteNorFlash`]). With
-//! [`RamFlash::cut_power_at`] the `n`th write or erase (counting from 0) does only part of its
-//! work — a write programs the first half of its bytes and clears only some bits of the next,
-//! an erase erases the first half of its range and leaves one byte beyond half-erased — and it
-//! and every later operation fail with [`Error::PowerLoss`] until [`RamFlash::power_on`].
+//! `old & new`, as programming NOR does). With [`RamFlash::cut_power_at`] the `n`th write or
+//! erase (counting from 0) does only part of its work — a write programs the first half of its
+//! bytes and clears only some bits of the next, an erase erases the first half of its range and
+//! leaves one byte beyond half-erased — and it and every later operation fail with
+//! [`Error::PowerLoss`] until [`RamFlash::power_on`].
+//!
+//! [`RamFlash::write_once`] has the semantics of ECC flash such as the STM32H7's: each write
+//! unit may be programmed once between erases (a second program, even of the same bytes, is
+//! [`Error::Reprogram`]), and the unit a power loss cut reads back as garbage (never erased,
+//! never the bytes meant) through [`MappedFlash::mapped`] and as [`Error::Ecc`] through
+//! [`ReadNorFlash::read`]. It keeps one state byte per write unit in a slice of the caller's.
 //!
 //! The bytes are any [`Memory`]: a slice (`&mut [u8]`, the tests), or a board's RAM region
 //! reached by address (the QEMU boards, whose served blob lies in the same region).
 
 use embedded_storage::nor_flash::{
-    check_erase, check_read, check_write, ErrorType, MultiwriteNorFlash, NorFlash, NorFlashError,
-    NorFlashErrorKind, ReadNorFlash,
+    check_erase, check_read, check_write, ErrorType, NorFlash, NorFlashError, NorFlashErrorKind,
+    ReadNorFlash,
 };
 
 use crate::MappedFlash;
@@ -30,13 +36,17 @@ pub enum Error {
     Bounds(NorFlashErrorKind),
     /// The power went: the operation was cut and the flash answers nothing until power-on.
     PowerLoss,
+    /// Write-once mode: a write unit programmed since its erase (or cut) was programmed again.
+    Reprogram,
+    /// Write-once mode: a read covered a unit whose programming or erase a power loss cut.
+    Ecc,
 }
 
 impl NorFlashError for Error {
     fn kind(&self) -> NorFlashErrorKind {
         match self {
             Error::Bounds(k) => *k,
-            Error::PowerLoss => NorFlashErrorKind::Other,
+            Error::PowerLoss | Error::Reprogram | Error::Ecc => NorFlashErrorKind::Other,
         }
     }
 }
@@ -67,24 +77,51 @@ impl Memory for &mut [u8] {
     }
 }
 
+/// A write unit's state in write-once mode: erased, programmed, or left unreliable by a cut.
+const ERASED: u8 = 0;
+const PROGRAMMED: u8 = 1;
+const CUT: u8 = 2;
+
+/// The write units `range` of bytes touches.
+fn units(range: core::ops::Range<usize>) -> core::ops::Range<usize> {
+    range.start / WRITE_SIZE..range.end.div_ceil(WRITE_SIZE)
+}
+
 /// NOR flash semantics over RAM (a multiple of [`ERASE_SIZE`] bytes).
 #[derive(Debug)]
-pub struct RamFlash<M> {
+pub struct RamFlash<'c, M> {
     mem: M,
+    /// Write-once mode: one state per write unit ([`ERASED`], [`PROGRAMMED`], [`CUT`]).
+    cells: Option<&'c mut [u8]>,
     ops: u32,
     cut_at: Option<u32>,
     off: bool,
 }
 
-impl<M: Memory> RamFlash<M> {
-    /// The flash over `mem`, as it is (erase it first for a blank part).
+impl<'c, M: Memory> RamFlash<'c, M> {
+    /// The flash over `mem`, as it is (erase it first for a blank part); a location may be
+    /// programmed again to clear more bits.
     pub fn new(mem: M) -> Self {
         Self {
             mem,
+            cells: None,
             ops: 0,
             cut_at: None,
             off: false,
         }
+    }
+
+    /// ECC flash over `mem` (module documentation): `cells` holds one state byte per write
+    /// unit, all zero for a part whose every unit is erased; the caller keeps it with the bytes
+    /// across power cycles. `None` when `cells` is shorter than that.
+    pub fn write_once(mem: M, cells: &'c mut [u8]) -> Option<Self> {
+        if cells.len() < mem.bytes().len() / WRITE_SIZE {
+            return None;
+        }
+        Some(Self {
+            cells: Some(cells),
+            ..Self::new(mem)
+        })
     }
 
     /// The memory underneath.
@@ -123,13 +160,51 @@ impl<M: Memory> RamFlash<M> {
         self.off = cut;
         Ok(cut)
     }
+
+    /// Write-once mode: unit `u`'s state (every unit is erased in the other mode).
+    fn cell(&self, u: usize) -> u8 {
+        self.cells
+            .as_deref()
+            .and_then(|c| c.get(u))
+            .copied()
+            .unwrap_or(ERASED)
+    }
+
+    /// Write-once mode: sets the state of `units`.
+    fn set_cells(&mut self, units: core::ops::Range<usize>, state: u8) {
+        if let Some(c) = self.cells.as_deref_mut().and_then(|c| c.get_mut(units)) {
+            c.fill(state);
+        }
+    }
+
+    /// A write cut after `done` of its bytes at `at`: in write-once mode the unit the cut fell
+    /// in holds garbage (never erased, never `bytes`: the rest of it has bit 7 clear and differs
+    /// from what was meant); otherwise some bits of the next byte are cleared.
+    fn cut_write(&mut self, at: usize, bytes: &[u8], done: usize) {
+        if self.cells.is_none() {
+            if let Some(b) = bytes.get(done) {
+                self.mem.program(at + done, &[*b | 0xA5]);
+            }
+            return;
+        }
+        let cut = (at + done) / WRITE_SIZE;
+        self.set_cells(at / WRITE_SIZE..cut, PROGRAMMED);
+        let end = ((cut + 1) * WRITE_SIZE).min(at + bytes.len());
+        for i in at + done..end {
+            let b = bytes[i - at];
+            self.mem.program(i, &[(b ^ 0xA5) & 0x7F]);
+        }
+        if at + done < end {
+            self.set_cells(cut..cut + 1, CUT);
+        }
+    }
 }
 
-impl<M> ErrorType for RamFlash<M> {
+impl<M> ErrorType for RamFlash<'_, M> {
     type Error = Error;
 }
 
-impl<M: Memory> ReadNorFlash for RamFlash<M> {
+impl<M: Memory> ReadNorFlash for RamFlash<'_, M> {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
@@ -138,6 +213,9 @@ impl<M: Memory> ReadNorFlash for RamFlash<M> {
             return Err(Error::PowerLoss);
         }
         let at = offset as usize;
+        if units(at..at + bytes.len()).any(|u| self.cell(u) == CUT) {
+            return Err(Error::Ecc);
+        }
         bytes.copy_from_slice(&self.mem.bytes()[at..at + bytes.len()]);
         Ok(())
     }
@@ -147,7 +225,7 @@ impl<M: Memory> ReadNorFlash for RamFlash<M> {
     }
 }
 
-impl<M: Memory> NorFlash for RamFlash<M> {
+impl<M: Memory> NorFlash for RamFlash<'_, M> {
     const WRITE_SIZE: usize = WRITE_SIZE;
     const ERASE_SIZE: usize = ERASE_SIZE;
 
@@ -157,36 +235,45 @@ impl<M: Memory> NorFlash for RamFlash<M> {
         if self.step()? {
             let half = from + (to - from) / 2;
             self.mem.erase(from..half);
+            self.set_cells(units(from..half), ERASED);
             // One byte beyond half-erased: erasing sets bits, so programming cannot model it.
             let b = self.mem.bytes()[half];
             self.mem.erase(half..half + 1);
             self.mem.program(half, &[b | 0x5A]);
+            // Its unit, unless it was erased already, is now neither erased nor programmed.
+            let u = half / WRITE_SIZE;
+            if self.cell(u) != ERASED {
+                self.set_cells(u..u + 1, CUT);
+            }
             return Err(Error::PowerLoss);
         }
         self.mem.erase(from..to);
+        self.set_cells(units(from..to), ERASED);
         Ok(())
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Error> {
         check_write(self, offset, bytes.len()).map_err(Error::Bounds)?;
+        if self.off {
+            return Err(Error::PowerLoss);
+        }
         let at = offset as usize;
+        if units(at..at + bytes.len()).any(|u| self.cell(u) != ERASED) {
+            return Err(Error::Reprogram);
+        }
         let cut = self.step()?;
         let done = if cut { bytes.len() / 2 } else { bytes.len() };
         self.mem.program(at, &bytes[..done]);
         if cut {
-            if let Some(b) = bytes.get(done) {
-                self.mem.program(at + done, &[*b | 0xA5]);
-            }
+            self.cut_write(at, bytes, done);
             return Err(Error::PowerLoss);
         }
+        self.set_cells(units(at..at + bytes.len()), PROGRAMMED);
         Ok(())
     }
 }
 
-// Programming ANDs: a location may be written again to clear more bits.
-impl<M: Memory> MultiwriteNorFlash for RamFlash<M> {}
-
-impl<M: Memory> MappedFlash for RamFlash<M> {
+impl<M: Memory> MappedFlash for RamFlash<'_, M> {
     fn mapped(&self) -> &[u8] {
         self.mem.bytes()
     }
@@ -222,5 +309,63 @@ mod tests {
         f.power_on();
         f.erase(0, ERASE_SIZE as u32).unwrap();
         assert!(f.mapped().iter().all(|&b| b == 0xFF));
+    }
+
+    #[test]
+    fn write_once_programs_a_unit_once_between_erases() {
+        let mut mem = [0xFFu8; ERASE_SIZE];
+        let mut cells = [0u8; ERASE_SIZE / WRITE_SIZE];
+        let mut f = RamFlash::write_once(&mut mem[..], &mut cells).unwrap();
+        f.write(0, &[1, 2, 3, 4]).unwrap();
+        assert_eq!(
+            f.write(0, &[1, 2, 3, 4]),
+            Err(Error::Reprogram),
+            "not even the same"
+        );
+        assert_eq!(f.write(4, &[0xFF; 4]), Ok(()));
+        assert_eq!(
+            f.write(4, &[0; 4]),
+            Err(Error::Reprogram),
+            "erased bytes, programmed"
+        );
+        f.erase(0, ERASE_SIZE as u32).unwrap();
+        assert_eq!(f.write(0, &[1, 2, 3, 4]), Ok(()));
+        let mut short = [0u8; 3];
+        assert!(RamFlash::write_once(&mut mem[..], &mut short).is_none());
+    }
+
+    #[test]
+    fn write_once_leaves_a_cut_unit_garbage_and_unreadable() {
+        let mut mem = [0xFFu8; ERASE_SIZE];
+        let mut cells = [0u8; ERASE_SIZE / WRITE_SIZE];
+        let mut f = RamFlash::write_once(&mut mem[..], &mut cells).unwrap();
+        let data = [0x5Au8; 12];
+        f.cut_power_at(0);
+        assert_eq!(f.write(0, &data), Err(Error::PowerLoss));
+        f.power_on();
+        // Half of 12 bytes: unit 0 programmed, unit 1 cut, unit 2 untouched.
+        assert_eq!(&f.mapped()[..4], &data[..4]);
+        let cut = &f.mapped()[4..8];
+        assert!(
+            cut != [0xFF; 4] && cut != &data[4..8],
+            "garbage: {cut:02x?}"
+        );
+        assert_eq!(&f.mapped()[8..12], &[0xFF; 4]);
+        let mut buf = [0u8; 4];
+        assert_eq!(f.read(4, &mut buf), Err(Error::Ecc));
+        assert_eq!(f.read(0, &mut buf), Ok(()));
+        assert_eq!(
+            f.write(4, &data[4..8]),
+            Err(Error::Reprogram),
+            "the cut unit"
+        );
+        assert_eq!(f.write(8, &data[8..]), Ok(()), "the unit after it");
+        // A cut erase leaves the programmed unit at its half unreliable.
+        f.write(2048, &data[..4]).unwrap();
+        f.cut_power_at(0);
+        assert_eq!(f.erase(0, ERASE_SIZE as u32), Err(Error::PowerLoss));
+        f.power_on();
+        assert_eq!(f.read(2048, &mut buf), Err(Error::Ecc));
+        assert_eq!(f.write(4, &data[4..8]), Ok(()), "erased in the first half");
     }
 }

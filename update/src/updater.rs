@@ -162,7 +162,10 @@ impl<F: MappedFlash> Updater<F> {
         }
     }
 
-    /// What the upload slot holds, if an upload has begun (its first page is held).
+    /// What the upload slot holds, if an upload has begun (its first page is held) and can go
+    /// on: the page after the held ones is blank. One that is not was cut short by a reset (or
+    /// its mark was), and a write unit is never programmed twice between erases: the upload
+    /// starts over, and its first chunk erases the slot.
     pub fn upload(&self) -> Option<Upload> {
         let slot = self.upload_slot();
         if !self.mark_done(slot, 0) {
@@ -175,6 +178,9 @@ impl<F: MappedFlash> Updater<F> {
         let mut pages = 0;
         while pages < total.div_ceil(PAGE) && self.mark_done(slot, pages) {
             pages += 1;
+        }
+        if pages < total.div_ceil(PAGE) && !self.page_blank(slot, pages) {
+            return None;
         }
         Some(Upload {
             slot: slot as u8,
@@ -197,8 +203,8 @@ impl<F: MappedFlash> Updater<F> {
 
     /// Writes `data`, the image's bytes from `offset`, into the upload slot after checking it
     /// against `crc` (CRC-32). A chunk at offset 0 starts the upload its header names (erasing
-    /// the slot unless it already holds that upload's first page); a later chunk must start
-    /// on a page at or before [`Upload::held`]. Bytes already held are not written again.
+    /// the slot unless it holds that upload, [`Updater::upload`]); a later chunk must start on
+    /// a page at or before [`Upload::held`]. Bytes already held are not written again.
     pub fn chunk(&mut self, offset: u32, data: &[u8], crc: u32) -> Result<Upload, UpdateError> {
         if crc32(data) != crc {
             return Err(UpdateError::ChunkCrc);
@@ -307,6 +313,15 @@ impl<F: MappedFlash> Updater<F> {
         Some(crc32(&self.flash.mapped()[at..at + header.image_len()]))
     }
 
+    /// Whether page `p` of slot `s` (its bytes within the image area) is all erased.
+    fn page_blank(&self, s: usize, p: usize) -> bool {
+        let slot = self.layout.slot(s);
+        let end = (slot + (p + 1) * PAGE).min(slot + self.layout.image_cap);
+        self.flash.mapped()[slot + p * PAGE..end]
+            .iter()
+            .all(|&b| b == 0xFF)
+    }
+
     /// A page mark with any bit programmed: its page was written and read back before it.
     fn mark_done(&self, s: usize, page: usize) -> bool {
         let at = self.layout.mark(s, page);
@@ -328,14 +343,14 @@ impl<F: MappedFlash> Updater<F> {
     }
 
     /// Writes page `p` of slot `s` (skipped when it already holds `data`), reads it back,
-    /// then programs its mark.
+    /// then programs its mark (unless it reads programmed).
     fn write_page(&mut self, s: usize, p: usize, data: &[u8]) -> Result<(), UpdateError> {
         let at = self.layout.slot(s) + p * PAGE;
-        let old = &self.flash.mapped()[at..at + data.len()];
-        if old != data {
-            // Programming only clears bits: a page cut short by a reset can be finished, a
-            // page of another upload cannot.
-            if old.iter().zip(data).any(|(o, d)| o & d != *d) {
+        if &self.flash.mapped()[at..at + data.len()] != data {
+            // Only a blank page is written: each write unit is programmed once between erases
+            // (ECC flash allows no second program). A page that is not blank holds another
+            // upload's bytes, or a page cut short: the slot is erased and the upload restarts.
+            if !self.page_blank(s, p) {
                 self.erase_slot(s)?;
                 return Err(UpdateError::Conflict);
             }
@@ -345,7 +360,7 @@ impl<F: MappedFlash> Updater<F> {
                 .write(at as u32, &data[..whole])
                 .map_err(flash_err)?;
             if whole < data.len() {
-                // The image's last bytes, padded with the erased value (which programs nothing).
+                // The image's last bytes in one unit, padded with the erased value.
                 let mut tail = [0xFFu8; MAX_WRITE];
                 tail[..data.len() - whole].copy_from_slice(&data[whole..]);
                 self.flash

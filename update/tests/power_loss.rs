@@ -1,15 +1,18 @@
-//! Updates with the power cut at every write and erase, and the refusals, on the shipped blobs.
+//! Updates with the power cut at every write and erase, and the refusals, on the shipped blobs,
+//! each on NOR flash (a location may be programmed again) and on ECC flash (`RamFlash`'s
+//! write-once mode: a second program of a write unit is an error, a cut unit reads back as
+//! garbage).
 //!
 //! After every cut the partition is opened again ("reboot") and must name exactly one active
 //! model whose blob is intact (its image CRC, the blob's own checks) and is the old one until
 //! the commit's journal record is whole; the upload then resumes from what the device says it
-//! holds and the commit completes.
+//! holds (from 0 when a page was cut short) and the commit completes.
 
 use epssn::blob::{Blob, BlobError};
 use epssn::config;
 use epssn_update::image::{self, HEADER_LEN};
 use epssn_update::layout::PAGE;
-use epssn_update::ram_flash::ERASE_SIZE;
+use epssn_update::ram_flash::{ERASE_SIZE, WRITE_SIZE};
 use epssn_update::{Active, RamFlash, UpdateError, Updater};
 
 const OLD: &[u8] = include_bytes!("../../weights/general/epssn-s.q8.bin");
@@ -22,6 +25,37 @@ const SECRET: [u8; 32] = [0x42; 32];
 const CAPACITY: usize = 2 * ERASE_SIZE + 2 * 32 * 1024;
 /// Chunks of two pages: a chunk is several writes, so cuts fall inside chunks too.
 const CHUNK: usize = 2 * PAGE;
+
+/// A partition: its bytes and, on ECC flash, the state of each write unit (kept across
+/// reboots as the part keeps it).
+#[derive(Clone)]
+struct Part {
+    bytes: Vec<u8>,
+    cells: Option<Vec<u8>>,
+}
+
+/// The flash of a [`Part`].
+type Flash<'a> = RamFlash<'a, &'a mut [u8]>;
+
+/// NOR flash, then ECC flash (write once).
+const WRITE_ONCE: [bool; 2] = [false, true];
+
+impl Part {
+    fn blank(write_once: bool) -> Self {
+        Part {
+            bytes: vec![0xFF; CAPACITY],
+            cells: write_once.then(|| vec![0; CAPACITY / WRITE_SIZE]),
+        }
+    }
+
+    /// The flash at power-on.
+    fn flash(&mut self) -> Flash<'_> {
+        match &mut self.cells {
+            Some(cells) => RamFlash::write_once(&mut self.bytes[..], cells).unwrap(),
+            None => RamFlash::new(&mut self.bytes[..]),
+        }
+    }
+}
 
 fn key() -> [u8; 32] {
     epssn_update::verify::public_key(&SECRET)
@@ -39,11 +73,7 @@ fn self_test(blob: &[u8], _golden: u32) -> bool {
 }
 
 /// Sends the image from `from` in chunks; stops at the first error.
-fn upload(
-    u: &mut Updater<RamFlash<&mut [u8]>>,
-    img: &[u8],
-    from: usize,
-) -> Result<(), UpdateError> {
+fn upload(u: &mut Updater<Flash<'_>>, img: &[u8], from: usize) -> Result<(), UpdateError> {
     let mut at = from;
     while at < img.len() {
         let end = (at + CHUNK).min(img.len());
@@ -55,7 +85,7 @@ fn upload(
 }
 
 /// Where a resumed upload starts: what the device holds of this image, else 0.
-fn resume_point(u: &Updater<RamFlash<&mut [u8]>>, img: &[u8]) -> usize {
+fn resume_point(u: &Updater<Flash<'_>>, img: &[u8]) -> usize {
     let id = epssn::crc32::crc32(&img[..HEADER_LEN]);
     match u.upload() {
         Some(up) if up.id == id => up.held as usize,
@@ -64,7 +94,7 @@ fn resume_point(u: &Updater<RamFlash<&mut [u8]>>, img: &[u8]) -> usize {
 }
 
 /// The one active model: its version, with its blob checked against what it must be.
-fn check_active(u: &Updater<RamFlash<&mut [u8]>>, expect: &[(u32, &[u8])]) -> u32 {
+fn check_active(u: &Updater<Flash<'_>>, expect: &[(u32, &[u8])]) -> u32 {
     let v = u.active().version();
     let blob = u.active_blob().expect("a slot serves");
     let (_, want) = expect
@@ -76,13 +106,15 @@ fn check_active(u: &Updater<RamFlash<&mut [u8]>>, expect: &[(u32, &[u8])]) -> u3
     v
 }
 
-fn blank() -> Vec<u8> {
-    vec![0xFF; CAPACITY]
+/// A blank partition with general's blob committed as version 1.
+fn with_v1(write_once: bool) -> Part {
+    let mut part = Part::blank(write_once);
+    commit_v1(part.flash());
+    part
 }
 
-/// A partition with `blob` committed as version 1.
-fn with_v1(mem: &mut [u8]) {
-    let mut u = Updater::open(RamFlash::new(mem)).unwrap();
+fn commit_v1(flash: Flash<'_>) {
+    let mut u = Updater::open(flash).unwrap();
     assert_eq!(u.active(), Active::Factory);
     upload(&mut u, &signed(&SECRET, 1, OLD), 0).unwrap();
     assert_eq!(
@@ -96,22 +128,27 @@ fn with_v1(mem: &mut [u8]) {
 
 #[test]
 fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
-    let mut base = blank();
-    with_v1(&mut base);
+    for write_once in WRITE_ONCE {
+        cut_at_every_operation(write_once);
+    }
+}
+
+fn cut_at_every_operation(write_once: bool) {
+    let base = with_v1(write_once);
     let img = signed(&SECRET, 2, NEW);
     // The clean run: how many operations, and which one writes the journal record.
-    let mut mem = base.clone();
-    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+    let mut part = base.clone();
+    let mut u = Updater::open(part.flash()).unwrap();
     let start = u.flash().ops();
     upload(&mut u, &img, 0).unwrap();
     let before_record = u.flash().ops() - start;
     u.commit(&key(), self_test).unwrap();
     let total = u.flash().ops() - start;
     assert_eq!(total, before_record + 1, "the switch is one write");
-    eprintln!("an update is {total} writes and erases; the power is cut at each");
+    let (mut resumed, mut restarted) = (0, 0);
     for cut in 0..total {
-        let mut mem = base.clone();
-        let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+        let mut part = base.clone();
+        let mut u = Updater::open(part.flash()).unwrap();
         u.flash().cut_power_at(cut);
         let r = upload(&mut u, &img, 0).and_then(|()| u.commit(&key(), self_test).map(|_| ()));
         assert!(r.is_err() && u.flash().is_off(), "cut {cut} of {total}");
@@ -125,6 +162,11 @@ fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
             from.is_multiple_of(PAGE) || from == img.len(),
             "cut {cut}: resume at {from}"
         );
+        if from == 0 {
+            restarted += 1;
+        } else {
+            resumed += 1;
+        }
         upload(&mut u, &img, from).unwrap_or_else(|e| panic!("cut {cut}: resume: {e:?}"));
         assert_eq!(u.commit(&key(), self_test).map(|a| a.version()), Ok(2));
         let u = Updater::open(u.into_flash()).unwrap();
@@ -134,18 +176,66 @@ fn a_cut_at_every_write_and_erase_of_an_update_leaves_one_valid_model() {
             "cut {cut}: after the reboot"
         );
     }
+    eprintln!(
+        "{}: an update is {total} writes and erases; after a cut at each, {resumed} uploads \
+         resumed and {restarted} started over",
+        if write_once { "ECC flash" } else { "NOR flash" }
+    );
+    // A cut between pages leaves their progress; one inside a page or before the first mark
+    // starts the upload over.
+    assert!(resumed > 0 && restarted > 0);
+}
+
+#[test]
+fn a_page_cut_short_is_not_written_again_the_upload_starts_over() {
+    for write_once in WRITE_ONCE {
+        let mut part = with_v1(write_once);
+        let img = signed(&SECRET, 2, NEW);
+        let mut u = Updater::open(part.flash()).unwrap();
+        upload(&mut u, &img[..2 * CHUNK], 0).unwrap();
+        assert_eq!(resume_point(&u, &img), 2 * CHUNK);
+        // The next chunk's first write is its first page: cut halfway.
+        u.flash().cut_power_at(0);
+        let part3 = &img[2 * CHUNK..3 * CHUNK];
+        let crc = epssn::crc32::crc32(part3);
+        assert!(u.chunk(2 * CHUNK as u32, part3, crc).is_err());
+        let mut flash = u.into_flash();
+        flash.power_on();
+        let mut u = Updater::open(flash).unwrap();
+        assert_eq!(u.upload(), None, "nothing to resume");
+        assert_eq!(
+            u.chunk(2 * CHUNK as u32, part3, crc),
+            Err(UpdateError::ChunkRange)
+        );
+        assert_eq!(u.commit(&key(), self_test), Err(UpdateError::Incomplete));
+        // From 0: the slot is erased first, so no unit is programmed twice.
+        let ops = u.flash().ops();
+        upload(&mut u, &img[..CHUNK], 0).unwrap();
+        assert_eq!(
+            u.flash().ops() - ops,
+            2 + 2 * 2,
+            "two erases, two pages and marks"
+        );
+        upload(&mut u, &img, CHUNK).unwrap();
+        assert_eq!(u.commit(&key(), self_test).map(|a| a.version()), Ok(2));
+    }
 }
 
 #[test]
 fn the_journal_moves_to_its_other_sector_safely() {
+    for write_once in WRITE_ONCE {
+        journal_sector_change(write_once);
+    }
+}
+
+fn journal_sector_change(write_once: bool) {
     // Enough commits to fill the first journal sector; cut every operation of the commit
     // that erases the second sector and writes there.
-    let mut mem = blank();
-    with_v1(&mut mem);
-    let per_sector = ERASE_SIZE / epssn_update::journal::stride(4);
+    let mut part = with_v1(write_once);
+    let per_sector = ERASE_SIZE / epssn_update::journal::stride(WRITE_SIZE);
     let mut version = 1;
     {
-        let mut flash = RamFlash::new(&mut mem[..]);
+        let mut flash = part.flash();
         for _ in 1..per_sector {
             let mut u = Updater::open(flash).unwrap();
             version += 1;
@@ -155,16 +245,16 @@ fn the_journal_moves_to_its_other_sector_safely() {
         }
     }
     let img = signed(&SECRET, version + 1, NEW);
-    let snapshot = mem.clone();
-    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+    let snapshot = part.clone();
+    let mut u = Updater::open(part.flash()).unwrap();
     upload(&mut u, &img, 0).unwrap();
     let start = u.flash().ops();
     u.commit(&key(), |_, _| true).unwrap();
     let ops = u.flash().ops() - start;
     assert_eq!(ops, 2, "a sector erase, then the record");
     for cut in 0..ops {
-        let mut mem = snapshot.clone();
-        let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+        let mut part = snapshot.clone();
+        let mut u = Updater::open(part.flash()).unwrap();
         upload(&mut u, &img, 0).unwrap();
         u.flash().cut_power_at(cut);
         assert!(u.commit(&key(), |_, _| true).is_err());
@@ -188,9 +278,14 @@ fn the_journal_moves_to_its_other_sector_safely() {
 
 #[test]
 fn refusals_leave_the_old_model_serving_and_say_why() {
-    let mut mem = blank();
-    with_v1(&mut mem);
-    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+    for write_once in WRITE_ONCE {
+        refusals(write_once);
+    }
+}
+
+fn refusals(write_once: bool) {
+    let mut part = with_v1(write_once);
+    let mut u = Updater::open(part.flash()).unwrap();
     let cases: [(&str, Vec<u8>, UpdateError); 4] = [
         (
             "other key",
@@ -263,9 +358,14 @@ fn refusals_leave_the_old_model_serving_and_say_why() {
 
 #[test]
 fn a_resent_chunk_is_not_written_again_and_a_new_upload_restarts_the_slot() {
-    let mut mem = blank();
-    with_v1(&mut mem);
-    let mut u = Updater::open(RamFlash::new(&mut mem[..])).unwrap();
+    for write_once in WRITE_ONCE {
+        resent_chunk(write_once);
+    }
+}
+
+fn resent_chunk(write_once: bool) {
+    let mut part = with_v1(write_once);
+    let mut u = Updater::open(part.flash()).unwrap();
     let img = signed(&SECRET, 2, NEW);
     upload(&mut u, &img[..2 * CHUNK], 0).unwrap();
     let ops = u.flash().ops();
