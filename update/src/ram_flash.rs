@@ -8,11 +8,12 @@
 //! leaves one byte beyond half-erased — and it and every later operation fail with
 //! [`Error::PowerLoss`] until [`RamFlash::power_on`].
 //!
-//! [`RamFlash::write_once`] has the semantics of ECC flash such as the STM32H7's: each write
-//! unit may be programmed once between erases (a second program, even of the same bytes, is
-//! [`Error::Reprogram`]), and the unit a power loss cut reads back as garbage (never erased,
-//! never the bytes meant) through [`MappedFlash::mapped`] and as [`Error::Ecc`] through
-//! [`ReadNorFlash::read`]. It keeps one state byte per write unit in a slice of the caller's.
+//! Write-once mode ([`RamFlash::with_cells`]) has the semantics of ECC flash such as the
+//! STM32H7's: each write unit may be programmed once between erases (a second program, even of
+//! the same bytes, is [`Error::Reprogram`]), and the unit a power loss cut reads back as garbage
+//! (never erased, never the bytes meant) through [`MappedFlash::mapped`] and as [`Error::Ecc`]
+//! through [`ReadNorFlash::read`]. It keeps one state byte per write unit in a slice of the
+//! caller's; [`RamFlash::new`] keeps none, and compiles to NOR flash alone.
 //!
 //! The bytes are any [`Memory`]: a slice (`&mut [u8]`, the tests), or a board's RAM region
 //! reached by address (the QEMU boards, whose served blob lies in the same region).
@@ -87,43 +88,88 @@ fn units(range: core::ops::Range<usize>) -> core::ops::Range<usize> {
     range.start / WRITE_SIZE..range.end.div_ceil(WRITE_SIZE)
 }
 
-/// NOR flash semantics over RAM (a multiple of [`ERASE_SIZE`] bytes).
+/// Where a [`RamFlash`] keeps the state of each write unit: in write-once mode a slice, one
+/// byte per unit.
+pub trait Cells {
+    /// The states, in write-once mode.
+    fn states(&self) -> Option<&[u8]>;
+    /// The states, to change, in write-once mode.
+    fn states_mut(&mut self) -> Option<&mut [u8]>;
+}
+
+/// No states: NOR flash, whose locations may be programmed again to clear more bits.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Nor;
+
+impl Cells for Nor {
+    fn states(&self) -> Option<&[u8]> {
+        None
+    }
+
+    fn states_mut(&mut self) -> Option<&mut [u8]> {
+        None
+    }
+}
+
+/// Write-once mode when `Some`.
+impl Cells for Option<&mut [u8]> {
+    fn states(&self) -> Option<&[u8]> {
+        self.as_deref()
+    }
+
+    fn states_mut(&mut self) -> Option<&mut [u8]> {
+        self.as_deref_mut()
+    }
+}
+
+/// NOR flash semantics over RAM (a multiple of [`ERASE_SIZE`] bytes); ECC flash semantics with
+/// a write unit state store `C` in write-once mode.
 #[derive(Debug)]
-pub struct RamFlash<'c, M> {
+pub struct RamFlash<M, C = Nor> {
     mem: M,
     /// Write-once mode: one state per write unit ([`ERASED`], [`PROGRAMMED`], [`CUT`]).
-    cells: Option<&'c mut [u8]>,
+    cells: C,
     ops: u32,
     cut_at: Option<u32>,
     off: bool,
 }
 
-impl<'c, M: Memory> RamFlash<'c, M> {
-    /// The flash over `mem`, as it is (erase it first for a blank part); a location may be
-    /// programmed again to clear more bits.
+impl<M: Memory> RamFlash<M> {
+    /// NOR flash over `mem`, as it is (erase it first for a blank part).
     pub fn new(mem: M) -> Self {
         Self {
             mem,
-            cells: None,
+            cells: Nor,
             ops: 0,
             cut_at: None,
             off: false,
         }
     }
+}
 
-    /// ECC flash over `mem` (module documentation): `cells` holds one state byte per write
-    /// unit, all zero for a part whose every unit is erased; the caller keeps it with the bytes
-    /// across power cycles. `None` when `cells` is shorter than that.
-    pub fn write_once(mem: M, cells: &'c mut [u8]) -> Option<Self> {
-        if cells.len() < mem.bytes().len() / WRITE_SIZE {
+impl<'c, M: Memory> RamFlash<M, Option<&'c mut [u8]>> {
+    /// With `cells`, ECC flash over `mem` (module documentation): `cells` holds one state byte
+    /// per write unit, all zero for a part whose every unit is erased, and the caller keeps it
+    /// with the bytes across power cycles. Without, NOR flash. `None` when `cells` is shorter
+    /// than one byte per write unit.
+    pub fn with_cells(mem: M, cells: Option<&'c mut [u8]>) -> Option<Self> {
+        if cells
+            .as_deref()
+            .is_some_and(|c| c.len() < mem.bytes().len() / WRITE_SIZE)
+        {
             return None;
         }
         Some(Self {
-            cells: Some(cells),
-            ..Self::new(mem)
+            mem,
+            cells,
+            ops: 0,
+            cut_at: None,
+            off: false,
         })
     }
+}
 
+impl<M: Memory, C: Cells> RamFlash<M, C> {
     /// The memory underneath.
     pub fn memory(&self) -> &M {
         &self.mem
@@ -164,7 +210,7 @@ impl<'c, M: Memory> RamFlash<'c, M> {
     /// Write-once mode: unit `u`'s state (every unit is erased in the other mode).
     fn cell(&self, u: usize) -> u8 {
         self.cells
-            .as_deref()
+            .states()
             .and_then(|c| c.get(u))
             .copied()
             .unwrap_or(ERASED)
@@ -172,7 +218,7 @@ impl<'c, M: Memory> RamFlash<'c, M> {
 
     /// Write-once mode: sets the state of `units`.
     fn set_cells(&mut self, units: core::ops::Range<usize>, state: u8) {
-        if let Some(c) = self.cells.as_deref_mut().and_then(|c| c.get_mut(units)) {
+        if let Some(c) = self.cells.states_mut().and_then(|c| c.get_mut(units)) {
             c.fill(state);
         }
     }
@@ -181,7 +227,7 @@ impl<'c, M: Memory> RamFlash<'c, M> {
     /// in holds garbage (never erased, never `bytes`: the rest of it has bit 7 clear and differs
     /// from what was meant); otherwise some bits of the next byte are cleared.
     fn cut_write(&mut self, at: usize, bytes: &[u8], done: usize) {
-        if self.cells.is_none() {
+        if self.cells.states().is_none() {
             if let Some(b) = bytes.get(done) {
                 self.mem.program(at + done, &[*b | 0xA5]);
             }
@@ -200,11 +246,11 @@ impl<'c, M: Memory> RamFlash<'c, M> {
     }
 }
 
-impl<M> ErrorType for RamFlash<'_, M> {
+impl<M, C> ErrorType for RamFlash<M, C> {
     type Error = Error;
 }
 
-impl<M: Memory> ReadNorFlash for RamFlash<'_, M> {
+impl<M: Memory, C: Cells> ReadNorFlash for RamFlash<M, C> {
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
@@ -225,7 +271,7 @@ impl<M: Memory> ReadNorFlash for RamFlash<'_, M> {
     }
 }
 
-impl<M: Memory> NorFlash for RamFlash<'_, M> {
+impl<M: Memory, C: Cells> NorFlash for RamFlash<M, C> {
     const WRITE_SIZE: usize = WRITE_SIZE;
     const ERASE_SIZE: usize = ERASE_SIZE;
 
@@ -273,7 +319,7 @@ impl<M: Memory> NorFlash for RamFlash<'_, M> {
     }
 }
 
-impl<M: Memory> MappedFlash for RamFlash<'_, M> {
+impl<M: Memory, C: Cells> MappedFlash for RamFlash<M, C> {
     fn mapped(&self) -> &[u8] {
         self.mem.bytes()
     }
@@ -315,7 +361,7 @@ mod tests {
     fn write_once_programs_a_unit_once_between_erases() {
         let mut mem = [0xFFu8; ERASE_SIZE];
         let mut cells = [0u8; ERASE_SIZE / WRITE_SIZE];
-        let mut f = RamFlash::write_once(&mut mem[..], &mut cells).unwrap();
+        let mut f = RamFlash::with_cells(&mut mem[..], Some(&mut cells)).unwrap();
         f.write(0, &[1, 2, 3, 4]).unwrap();
         assert_eq!(
             f.write(0, &[1, 2, 3, 4]),
@@ -331,14 +377,14 @@ mod tests {
         f.erase(0, ERASE_SIZE as u32).unwrap();
         assert_eq!(f.write(0, &[1, 2, 3, 4]), Ok(()));
         let mut short = [0u8; 3];
-        assert!(RamFlash::write_once(&mut mem[..], &mut short).is_none());
+        assert!(RamFlash::with_cells(&mut mem[..], Some(&mut short)).is_none());
     }
 
     #[test]
     fn write_once_leaves_a_cut_unit_garbage_and_unreadable() {
         let mut mem = [0xFFu8; ERASE_SIZE];
         let mut cells = [0u8; ERASE_SIZE / WRITE_SIZE];
-        let mut f = RamFlash::write_once(&mut mem[..], &mut cells).unwrap();
+        let mut f = RamFlash::with_cells(&mut mem[..], Some(&mut cells)).unwrap();
         let data = [0x5Au8; 12];
         f.cut_power_at(0);
         assert_eq!(f.write(0, &data), Err(Error::PowerLoss));

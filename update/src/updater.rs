@@ -307,6 +307,8 @@ impl<F: MappedFlash> Updater<F> {
     }
 
     /// CRC-32 of slot `s`'s image, if its header parses.
+    // Not inlined: `open` checks up to four journal records, and a copy each costs flash.
+    #[inline(never)]
     fn slot_image_crc(&self, s: usize) -> Option<u32> {
         let (header, _) = self.slot_header(s)?;
         let at = self.layout.slot(s);

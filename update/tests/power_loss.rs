@@ -35,7 +35,7 @@ struct Part {
 }
 
 /// The flash of a [`Part`].
-type Flash<'a> = RamFlash<'a, &'a mut [u8]>;
+type Flash<'a> = RamFlash<&'a mut [u8], Option<&'a mut [u8]>>;
 
 /// NOR flash, then ECC flash (write once).
 const WRITE_ONCE: [bool; 2] = [false, true];
@@ -50,10 +50,7 @@ impl Part {
 
     /// The flash at power-on.
     fn flash(&mut self) -> Flash<'_> {
-        match &mut self.cells {
-            Some(cells) => RamFlash::write_once(&mut self.bytes[..], cells).unwrap(),
-            None => RamFlash::new(&mut self.bytes[..]),
-        }
+        RamFlash::with_cells(&mut self.bytes[..], self.cells.as_deref_mut()).unwrap()
     }
 }
 

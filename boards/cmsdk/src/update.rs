@@ -78,7 +78,7 @@ impl Memory for Sram {
 
 /// The model updates of a QEMU board.
 pub struct BoardUpdates<'a> {
-    updater: Updater<RamFlash<'static, Sram>>,
+    updater: Updater<RamFlash<Sram>>,
     feed: &'a dyn Fn(),
     reset: fn() -> !,
     /// The board's clock and its instructions per tick: the commit's cost goes to the console.
