@@ -21,7 +21,7 @@ use fixed::types::U16F16;
 use static_cell::ConstStaticCell;
 
 #[cfg(feature = "updates")]
-use crate::update::{BoardUpdates, Sram};
+use crate::update::Sram;
 use crate::{command_line_has, FpgaLed, Uart};
 
 /// Scratch of one inference, in .bss (const-initialised: never built on the stack).
@@ -175,7 +175,7 @@ pub fn run<B: Board, const UART0: usize, const FPGAIO_LED: usize>(
     let now = || board.now();
     #[cfg(feature = "updates")]
     let (mut updates, served) = match board.update_partition().and_then(|(mem, reset)| {
-        BoardUpdates::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
+        crate::update::open(mem, &feed, reset, (&now, B::INSTRUCTIONS_PER_TICK))
     }) {
         Some((u, served)) => (Some(u), served),
         None => (None, None),

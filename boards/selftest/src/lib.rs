@@ -9,7 +9,9 @@
 //!   gives exactly the depth map the library computed on x86 (the golden vector);
 //!
 //! and reports the cost of each layer in the board's clock unit (instructions under QEMU
-//! `-icount`, core cycles on silicon). It also holds the boards' stack paint ([`Stack`]).
+//! `-icount`, core cycles on silicon). It also holds the boards' stack paint ([`Stack`]) and,
+//! with feature `updates`, the link server's model updates over a board's partition
+//! ([`updates::BoardUpdates`]).
 
 #![no_std]
 // Denied, not forbidden: the stack paint needs raw memory access, allowed in its module only.
@@ -29,6 +31,8 @@ pub mod reset;
 #[allow(unsafe_code)]
 mod stack;
 pub use stack::Stack;
+#[cfg(feature = "updates")]
+pub mod updates;
 
 /// The bytes of the compiled-in blob, 4-byte aligned like a slot's.
 #[repr(C, align(4))]
