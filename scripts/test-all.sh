@@ -63,7 +63,7 @@ board_start=$SECONDS
 (cd boards/selftest && cargo fmt -- --check)
 (cd boards/cmsdk && cargo fmt -- --check)
 bash scripts/elf-regions.sh boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743 \
-    FLASH:0x08000000:2097152 DTCM:0x20000000:131072 AXISRAM:0x24000000:524288
+    FLASH:0x08000000:1048576 DTCM:0x20000000:131072 AXISRAM:0x24000000:524288
 echo "(DTCM: statics above; the stack is the rest of DTCM, below them; board step $((SECONDS - board_start)) s)"
 
 step "DSP assembly kernels vs portable kernels on the Cortex-M7 in QEMU"

@@ -1,10 +1,12 @@
-//! The STM32H743 board: clocks, caches, cycle counter, busy LED, link UART, stack region.
+//! The STM32H743 board: clocks, caches, cycle counter, busy LED, link UART, stack region, and
+//! flash bank 2's driver (the update partition, `crate::update`).
 //! The only file that knows the part and the pinout (Nucleo-H743ZI: USART3 on PD8/PD9 is the
 //! ST-LINK's virtual COM port, LD1 on PB0); another module changes the pins here.
 
 use core::mem::MaybeUninit;
 
-use cortex_m::peripheral::DWT;
+use cortex_m::peripheral::{DWT, SCB};
+use embassy_stm32::flash::{Bank2Region, Blocking, Flash};
 use embassy_stm32::gpio::{Level, Output, Speed};
 use embassy_stm32::peripherals::IWDG1;
 use embassy_stm32::usart::{self, BufferedUart};
@@ -44,6 +46,10 @@ pub struct Board {
     pub watchdog: IndependentWatchdog<'static, IWDG1>,
     /// RCC_RSR as the reset left it (the flags are cleared for the next reset).
     pub reset_flags: u32,
+    /// Flash bank 2 (the update partition), through embassy-stm32's blocking driver.
+    pub bank2: Bank2Region<'static, Blocking>,
+    /// The system control block, caches enabled: the update partition's D-cache maintenance.
+    pub scb: SCB,
 }
 
 /// RCC reset status register (RCC base 0x5802_4400 + 0xD0).
@@ -51,10 +57,12 @@ const RCC_RSR: usize = 0x5802_44D0;
 
 /// IWDG1 timeout, µs. A depth map costs at most 48 M instructions (weights/budgets.json);
 /// at up to 2 cycles each on the 480 MHz core that is 200 ms, and its 8 KiB reply takes 90 ms
-/// at 921,600 baud: one pass of the serving loop stays under 300 ms. One second is three times
-/// that, with the LSI's ±10 % (RM0433: 29.5–34 kHz), and covers each step of the boot self-test
-/// (fed at every line it logs).
-pub const WATCHDOG_US: u32 = 1_000_000;
+/// at 921,600 baud: one pass of the serving loop stays under 300 ms, and each step of the boot
+/// self-test is fed at every line it logs. The longest step is an update chunk's erase of one
+/// 128 KiB sector of bank 2 (fed before each): seconds, at the parallelism embassy-stm32
+/// leaves set after a program; Keil's STM32H7 flash algorithm allows 6 s per sector. Eight
+/// seconds cover that with the LSI's ±10 % (RM0433: 29.5–34 kHz).
+pub const WATCHDOG_US: u32 = 8_000_000;
 
 /// The clock tree, from the 64 MHz HSI (no dependence on the module's crystal or the ST-LINK's
 /// MCO): PLL1 M = 4 (16 MHz reference), N = 60 (VCO 960 MHz, wide range), P = 2 → SYSCLK
@@ -113,6 +121,9 @@ pub fn init() -> Board {
     cp.DWT.set_cycle_count(0);
     cp.DWT.enable_cycle_counter();
 
+    let bank2 = Flash::new_blocking(p.FLASH)
+        .into_blocking_regions()
+        .bank2_region;
     let busy_led = Output::new(p.PB0, Level::Low, Speed::Low);
     let mut config = usart::Config::default();
     config.baudrate = LINK_BAUD;
@@ -132,6 +143,8 @@ pub fn init() -> Board {
         link: uart,
         watchdog,
         reset_flags,
+        bank2,
+        scb: cp.SCB,
     }
 }
 

@@ -1,20 +1,24 @@
 //! epssn co-processor firmware for an STM32H743/H753 module (pinout of the Nucleo-H743ZI).
 //!
 //! Board code only: clocks, caches, the link UART, the busy LED, the DWT cycle counter, the
-//! memory map (`memory.x`: statics and stack in DTCM, the link buffers in AXI SRAM). The boot
-//! self-test is the QEMU firmware's (`epssn-selftest`), the link server the library's
-//! (`epssn::server`). Logs go out as defmt over RTT (`probe-rs run`).
+//! memory map (`memory.x`: the image in flash bank 1, the update partition in bank 2, statics
+//! and stack in DTCM, the link buffers in AXI SRAM). The boot self-test is the QEMU firmware's
+//! (`epssn-selftest`), the link server the library's (`epssn::server`), the model updates the
+//! boards' shared ones over bank 2 (`update`). Logs go out as defmt over RTT (`probe-rs run`).
 //!
-//! Boot: clocks at 480 MHz, I- and D-cache on, cycle counter on, stack painted, self-test
-//! (warp tables, blob, golden depth map from the x86 library reproduced bit for bit, cycles
-//! per layer). On a pass it serves the link (docs/LINK.md) on USART3 until a `shutdown`
-//! message, then resets (the next session starts with fresh sequence numbers and an empty
-//! feature cache). On a failure it does not serve: the busy LED stays lit and the log says why.
+//! Boot: clocks at 480 MHz, I- and D-cache on, cycle counter on, stack painted, the update
+//! partition opened (the committed model, if any, serves from its slot in bank 2; else the
+//! compiled-in one), self-test (warp tables, blob, golden depth map reproduced bit for bit,
+//! cycles per layer). On a pass it serves the link (docs/LINK.md) on USART3, model updates
+//! included, until a `shutdown` message, then resets (the next session starts with fresh
+//! sequence numbers and an empty feature cache); a commit resets it into the new model. On a
+//! failure it does not serve: the busy LED stays lit and the log says why.
 
 #![no_std]
 #![no_main]
 
 mod board;
+mod update;
 
 use core::mem::MaybeUninit;
 
@@ -45,7 +49,7 @@ static mut DECODER: MaybeUninit<Decoder> = MaybeUninit::uninit();
 /// 100 ms of line silence abandons a partial message (docs/LINK.md, `Truncated`).
 const IDLE_CYCLES: u32 = board::CPU_HZ / 10;
 
-fn log(args: core::fmt::Arguments<'_>) {
+fn console(args: core::fmt::Arguments<'_>) {
     defmt::info!("{}", defmt::Display2Format(&args));
 }
 
@@ -61,6 +65,8 @@ fn main() -> ! {
         mut link,
         watchdog,
         reset_flags,
+        bank2,
+        scb,
     } = board;
     let watchdog = core::cell::RefCell::new(watchdog);
     // Fed from the serving loop and at each self-test line; `try_borrow_mut` has no panic path
@@ -72,7 +78,7 @@ fn main() -> ! {
     };
     let mut log = |args: core::fmt::Arguments<'_>| {
         feed();
-        log(args);
+        console(args);
     };
     epssn_selftest::banner(&mut log);
     defmt::info!(
@@ -99,14 +105,44 @@ fn main() -> ! {
     };
     let stack = board::stack();
     stack.paint();
-    let model = Model::from_blob(epssn_selftest::WEIGHTS);
     let now = board::cycles;
-    let clock = epssn_selftest::Clock {
+    let clock = || epssn_selftest::Clock {
         now: &now,
         units_per_tick: 1,
         unit: "cycles",
     };
-    let failures = epssn_selftest::run(&mut log, &model, &clock, &mut busy_led, ws, cache, depth);
+    // The model updates over bank 2 and the blob that serves: the committed update's, in
+    // place in its slot, else the compiled-in one.
+    let flash = update::Bank2::new(bank2, scb, &feed);
+    let (mut updates, served) = match update::open(flash, &feed, clock(), &console) {
+        Some((u, served)) => (Some(u), served),
+        None => (None, None),
+    };
+    if let Some(u) = &updates {
+        let s = epssn::server::Updates::serving(u);
+        defmt::info!(
+            "model: version {=u32} (slot {})",
+            s.version,
+            defmt::Debug2Format(&s.slot)
+        );
+    }
+    let (blob, golden) =
+        served.unwrap_or((epssn_selftest::WEIGHTS, epssn_selftest::SELFTEST_DEPTH_CRC));
+    let model = Model::from_blob(blob);
+    let served = epssn_selftest::Served {
+        blob_len: blob.len(),
+        golden,
+    };
+    let failures = epssn_selftest::run_served(
+        &mut log,
+        &model,
+        served,
+        &clock(),
+        &mut busy_led,
+        ws,
+        cache,
+        depth,
+    );
     defmt::info!(
         "stack high-water mark: {=u32} of {=u32} bytes",
         stack.high_water(),
@@ -142,6 +178,9 @@ fn main() -> ! {
     server.reset = cause;
     server.fault = fault;
     server.clear_fault = &epssn_selftest::reset::clear;
+    if let Some(u) = updates.as_mut() {
+        server.updates = Some(u);
+    }
     let r = server.serve(&mut link, &mut busy_led, decoder);
     defmt::info!(
         "link shut down ({=u32} line errors): {}; resetting",
