@@ -315,13 +315,15 @@ impl<F: MappedFlash> Updater<F> {
         Some(crc32(&self.flash.mapped()[at..at + header.image_len()]))
     }
 
+    /// Whether the `len` bytes at `at` are all erased.
+    fn blank(&self, at: usize, len: usize) -> bool {
+        self.flash.mapped()[at..at + len].iter().all(|&b| b == 0xFF)
+    }
+
     /// Whether page `p` of slot `s` (its bytes within the image area) is all erased.
     fn page_blank(&self, s: usize, p: usize) -> bool {
-        let slot = self.layout.slot(s);
-        let end = (slot + (p + 1) * PAGE).min(slot + self.layout.image_cap);
-        self.flash.mapped()[slot + p * PAGE..end]
-            .iter()
-            .all(|&b| b == 0xFF)
+        let at = self.layout.slot(s) + p * PAGE;
+        self.blank(at, PAGE.min(self.layout.image_cap.saturating_sub(p * PAGE)))
     }
 
     /// A page mark with any bit programmed: its page was written and read back before it.
@@ -387,6 +389,14 @@ impl<F: MappedFlash> Updater<F> {
     /// other sector (erased first) when this one is full.
     fn append(&mut self, r: Record) -> Result<(), UpdateError> {
         let stride = journal::stride(self.layout.write);
+        // Only a blank position is programmed: past a sector's last record the scan stops at
+        // the first blank one, and a sector erase a reset cut short can leave older records
+        // (or a half-erased word) after it.
+        while self.free + stride <= self.layout.erase
+            && !self.blank(self.layout.journal(self.sector) + self.free, stride)
+        {
+            self.free += stride;
+        }
         if self.free + stride > self.layout.erase {
             let other = 1 - self.sector;
             let at = self.layout.journal(other);
@@ -399,6 +409,9 @@ impl<F: MappedFlash> Updater<F> {
         let mut buf = [0xFFu8; journal::RECORD_LEN + MAX_WRITE];
         buf[..journal::RECORD_LEN].copy_from_slice(&r.to_bytes());
         let at = self.layout.journal(self.sector) + self.free;
+        if !self.blank(at, stride) {
+            return Err(UpdateError::Flash(NorFlashErrorKind::Other));
+        }
         // The position is used whatever happens: a cut record is never written over.
         self.free += stride;
         self.flash

@@ -379,3 +379,31 @@ fn resent_chunk(write_once: bool) {
     assert_eq!((up.version, up.held), (3, CHUNK as u32));
     assert_eq!(up.id, epssn::crc32::crc32(&other[..HEADER_LEN]));
 }
+
+#[test]
+fn a_journal_position_that_is_not_blank_is_skipped() {
+    // A sector erase cut short leaves older records after its erased half, past the blank
+    // position the scan stops at: appends (here all in one session, no reboot between
+    // commits to rescan) must skip them, never program over them.
+    let stride = epssn_update::journal::stride(WRITE_SIZE);
+    let leftover = 85 * stride;
+    for write_once in WRITE_ONCE {
+        let mut part = Part::blank(write_once);
+        part.bytes[leftover..leftover + stride].fill(0);
+        if let Some(cells) = &mut part.cells {
+            cells[leftover / WRITE_SIZE..(leftover + stride) / WRITE_SIZE].fill(1);
+        }
+        let mut u = Updater::open(part.flash()).unwrap();
+        for version in 1..=90 {
+            upload(&mut u, &signed(&SECRET, version, NEW), 0).unwrap();
+            assert_eq!(
+                u.commit(&key(), |_, _| true).map(|a| a.version()),
+                Ok(version),
+                "commit {version}"
+            );
+        }
+        let u = Updater::open(u.into_flash()).unwrap();
+        assert_eq!(u.active().version(), 90);
+        assert_eq!(u.active_blob(), Some(NEW));
+    }
+}
