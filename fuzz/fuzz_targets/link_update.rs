@@ -1,13 +1,15 @@
 //! The update messages (`chunk`, `upload?`, `upload`, `commit`) decoded from arbitrary bytes and
 //! driven into the update state machine over a RAM flash: nothing may panic or hang, each of
 //! these messages must re-encode to itself, a chunk carries 1 to `MAX_CHUNK_LEN` bytes, every
-//! refusal carries an update code, the held bytes never exceed the image, and no commit
-//! succeeds (no input can carry a signature by the key below: a forgery would be a finding).
+//! refusal carries an update code, the held bytes never exceed the image, no commit succeeds
+//! (no input can carry a signature by the key below: a forgery would be a finding), and the
+//! flash, ECC flash (`RamFlash` write-once), never refuses an operation: the updater programs
+//! no write unit twice between erases, whatever the messages.
 #![no_main]
 
 use epssn::link::{encode_to_slice, Decoder, Message, MAX_CHUNK_LEN, MAX_MESSAGE_LEN};
-use epssn_update::ram_flash::ERASE_SIZE;
-use epssn_update::{Active, RamFlash, Updater};
+use epssn_update::ram_flash::{ERASE_SIZE, WRITE_SIZE};
+use epssn_update::{Active, RamFlash, UpdateError, Updater};
 use libfuzzer_sys::fuzz_target;
 
 /// The public half of the private key [0x42; 32], which the fuzzer cannot know to sign with.
@@ -17,7 +19,9 @@ fn key() -> [u8; 32] {
 
 fuzz_target!(|data: &[u8]| {
     let mut mem = vec![0xFFu8; 2 * ERASE_SIZE + 2 * 32 * 1024];
-    let Ok(mut updater) = Updater::open(RamFlash::new(&mut mem[..])) else {
+    let mut cells = vec![0u8; mem.len() / WRITE_SIZE];
+    let flash = RamFlash::with_cells(&mut mem[..], Some(&mut cells[..])).expect("a cell a unit");
+    let Ok(mut updater) = Updater::open(flash) else {
         panic!("the partition holds two slots");
     };
     let key = key();
@@ -55,6 +59,7 @@ fuzz_target!(|data: &[u8]| {
             };
             if let Err(e) = result {
                 assert!((13..=23).contains(&e.code().code()), "{e:?}");
+                assert!(!matches!(e, UpdateError::Flash(_)), "{e:?}");
             }
             if let Some(u) = updater.upload() {
                 assert!(u.held <= u.total);
