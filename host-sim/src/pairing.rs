@@ -244,7 +244,7 @@ pub fn pair_recording(
         pair_by_pose(&frames, views, &mut warnings)
     } else {
         (
-            given_pairs(args, &reader, views, &mut warnings)?,
+            given_pairs(args, &reader, &frames, views, &mut warnings)?,
             Vec::new(),
         )
     };
@@ -294,6 +294,8 @@ pub(crate) struct FrameViews {
     pub(crate) rolls: Vec<Option<f64>>,
     pub(crate) attitudes: Vec<Option<Attitude>>,
     bursts: BTreeMap<usize, Vec<usize>>,
+    /// Frames whose own range window or fan does not fit the model, with why: never paired.
+    misfits: BTreeMap<usize, String>,
     pub(crate) pings_per_view: u32,
 }
 
@@ -311,6 +313,18 @@ impl FrameViews {
         let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
             .map(|i| frame_attitude(reader, i))
             .collect();
+        let misfits: BTreeMap<usize, String> = reader.misfit_frames().into_iter().collect();
+        if let Some((first, why)) = misfits.iter().next() {
+            warnings.push(format!(
+                "{} frame(s) whose own range window or fan does not fit the model were skipped \
+                 (frame {first}: {why})",
+                misfits.len()
+            ));
+            for &i in misfits.keys() {
+                rolls[i] = None;
+                attitudes[i] = None;
+            }
+        }
         let trained_pings = weights::trained_pings_per_view(weights_dir);
         let pings_per_view = args.pings_per_view.or(trained_pings).unwrap_or(1);
         ensure!(
@@ -359,6 +373,7 @@ impl FrameViews {
             rolls,
             attitudes,
             bursts,
+            misfits,
             pings_per_view,
         })
     }
@@ -401,6 +416,7 @@ fn pair_by_pose(
 fn given_pairs(
     args: &PairingOptions,
     reader: &Recording,
+    frames: &FrameViews,
     views: usize,
     warnings: &mut Vec<String>,
 ) -> Result<Vec<Vec<usize>>> {
@@ -418,6 +434,11 @@ fn given_pairs(
             "pair {a}:{b}: the recording has {} frames",
             reader.frame_count()
         );
+        for f in [a, b] {
+            if let Some(why) = frames.misfits.get(&f) {
+                bail!("pair {a}:{b}: frame {f} does not fit the model: {why}");
+            }
+        }
     }
     Ok(args.pairs.iter().map(|&(a, b)| vec![a, b]).collect())
 }

@@ -4,7 +4,7 @@
 use std::process::Command;
 
 mod common;
-use common::jittered_recording;
+use common::{demo_with_a_moved_window, jittered_recording};
 
 fn host_sim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_host-sim"))
@@ -124,6 +124,50 @@ fn real_aris1200_recording_is_refused_with_an_explanation() {
         "{err}"
     );
     assert!(o.stdout.is_empty());
+}
+
+/// A frame whose own window does not cover the model's is skipped by name, and the depth maps
+/// of the other pairs are the demo's; `--pair` with it is refused.
+#[test]
+fn a_frame_outside_the_window_is_skipped_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = demo_with_a_moved_window(dir.path(), 4);
+    let run = |extra: &[&str], rec: Option<&std::path::Path>, out: &str| {
+        let mut cmd = host_sim();
+        cmd.args(["run", "--json", "--out"])
+            .arg(dir.path().join(out));
+        if let Some(r) = rec {
+            // The demo's ground truth, which the default recording finds beside itself.
+            let gt = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo/gt");
+            cmd.arg("--recording").arg(r).args(["--gt", gt]);
+        }
+        cmd.args(extra).output().unwrap()
+    };
+    let o = run(&[], None, "demo");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let demo: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let o = run(&[], Some(&rec), "moved");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let moved: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(moved["pairs"], 5, "{moved}");
+    let warned = moved["warnings"].as_array().unwrap().iter().any(|w| {
+        let w = w.as_str().unwrap();
+        w.contains("1 frame(s) whose own range window") && w.contains("frame 4: range window 7.")
+    });
+    assert!(warned, "{}", moved["warnings"]);
+    let details = demo["details"].as_array().unwrap();
+    for d in moved["details"].as_array().unwrap() {
+        assert!(!frame_indices(d).contains(&4), "{d}");
+        let same = details.iter().find(|x| x["frames"] == d["frames"]).unwrap();
+        assert_eq!(same, d);
+    }
+    let o = run(&["--pair", "4:5"], Some(&rec), "given");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("pair 4:5: frame 4 does not fit the model"),
+        "{err}"
+    );
 }
 
 #[test]

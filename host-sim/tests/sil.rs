@@ -212,6 +212,25 @@ fn recording_with_unfit_geometry_is_refused() {
     );
 }
 
+/// The SIL streams every frame as a vehicle's host would: a frame whose own window does not
+/// fit is refused by name before the device starts.
+#[test]
+fn a_frame_outside_the_window_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = common::demo_with_a_moved_window(dir.path(), 4);
+    let out = host_sim()
+        .args(["sil", "--recording"])
+        .arg(&rec)
+        .output()
+        .expect("run host-sim sil");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("frame 4 does not fit the model") && err.contains("range window 7."),
+        "stderr: {err}"
+    );
+}
+
 #[test]
 fn short_soak_keeps_maps_bit_exact_and_the_stack_unchanged() {
     // One block (19 faults, a hello, the 3 frames again): the soak's bookkeeping on a run short

@@ -38,3 +38,17 @@ pub fn jittered_recording(dir: &std::path::Path, low: f64, high: f64) -> std::pa
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     dir.join("rec/recording.aris")
 }
+
+/// The demo recording with frame `k`'s window moved to start at 7.5 m (SampleStartDelay
+/// 10,000 µs, offset 476 of its frame header), as an operator's range change would.
+pub fn demo_with_a_moved_window(dir: &std::path::Path, k: usize) -> std::path::PathBuf {
+    let demo = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/demo/recording.aris");
+    let mut bytes = std::fs::read(demo).unwrap();
+    let frames = 12;
+    let frame_len = (bytes.len() - 1024) / frames;
+    let at = 1024 + k * frame_len + 476;
+    bytes[at..at + 4].copy_from_slice(&10_000u32.to_le_bytes());
+    let rec = dir.join("moved.aris");
+    std::fs::write(&rec, bytes).unwrap();
+    rec
+}

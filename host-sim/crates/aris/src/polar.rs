@@ -50,8 +50,9 @@ pub fn range_window_mismatch(r: &SampleRanges) -> Option<String> {
     })
 }
 
-/// Explains why a recording cannot feed the model, or `None` when it fits.
-pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
+/// Why a recording's sonar cannot feed the model (system, lens, beam count), or `None` when it
+/// can; each frame's range window is [`range_window_mismatch`]'s.
+pub fn sensor_mismatch(reader: &ArisReader) -> Option<String> {
     let mut why = Vec::new();
     let system = reader.system();
     if system.name() != config::SONAR_SYSTEM {
@@ -71,12 +72,7 @@ pub fn geometry_mismatch(reader: &ArisReader) -> Result<Option<String>> {
             config::BEAMS
         ));
     }
-    if let Ok(frame) = reader.frame(0) {
-        if let Ok(r) = frame.range_geometry() {
-            why.extend(range_window_mismatch(&r));
-        }
-    }
-    Ok((!why.is_empty()).then(|| why.join("; ")))
+    (!why.is_empty()).then(|| why.join("; "))
 }
 
 /// The frames `pings` of a recording (a view's pings at one roll) averaged in intensity

@@ -70,7 +70,10 @@ pub fn average(mut frames: Vec<SonarFrame>, table: &IntensityTable) -> Result<So
         .map_err(|e| anyhow!("frame {}: {e:?}", first.index))?;
     for f in &frames {
         ensure!(
-            f.beams == first.beams && f.data.len() == first.data.len(),
+            f.beams == first.beams
+                && f.data.len() == first.data.len()
+                && f.ranges == first.ranges
+                && f.beam_centres_rad == first.beam_centres_rad,
             "frames {} and {} differ in geometry: their pings cannot be averaged",
             first.index,
             f.index

@@ -123,19 +123,48 @@ impl Recording {
         }
     }
 
-    /// Why the recording cannot feed the model, or `None` when it fits: an ARIS file by its
-    /// system, lens, beams and window (`epssn_aris::polar::geometry_mismatch`); a bag by its
-    /// first ping's fan ([`crate::fit`]).
+    /// Why the recording cannot feed the model, or `None` when it can: an ARIS file's sonar
+    /// (system, lens, beams: `epssn_aris::polar::sensor_mismatch`), or no frame whose fan fits
+    /// (the first frame's reason). Frames that do not fit among frames that do are
+    /// [`Recording::misfit_frames`], skipped with a warning.
     pub fn geometry_mismatch(&self) -> Result<Option<String>> {
-        match self {
-            Self::Aris(r) => epssn_aris::polar::geometry_mismatch(r),
-            Self::Bag(b) => {
-                if b.frame_count() == 0 {
-                    return Ok(None);
-                }
-                Ok(misfit(&b.frame(0)?))
+        if let Self::Aris(r) = self {
+            if let Some(why) = epssn_aris::polar::sensor_mismatch(r) {
+                return Ok(Some(why));
             }
         }
+        let misfits = self.misfit_frames();
+        if misfits.is_empty() || misfits.len() < self.frame_count() {
+            return Ok(None);
+        }
+        Ok(misfits.into_iter().next().map(|(_, why)| why))
+    }
+
+    /// Every frame whose own geometry does not fit the model, with why, in order: a sonar's
+    /// range window (or a bag's fan) can change in mid-recording, and a frame outside the
+    /// model's window would be resampled as zeros, so each frame is checked, not the first only.
+    pub fn misfit_frames(&self) -> Vec<(usize, String)> {
+        let mut out = Vec::new();
+        for i in 0..self.frame_count() {
+            // A frame that cannot be read as a frame at all fits no better.
+            let why = match self {
+                Self::Aris(r) => match r
+                    .frame_header(i)
+                    .and_then(|h| h.range_geometry(r.samples_per_beam()))
+                {
+                    Ok(ranges) => epssn_aris::polar::range_window_mismatch(&ranges),
+                    Err(e) => Some(e.to_string()),
+                },
+                Self::Bag(b) => match b.frame(i) {
+                    Ok(frame) => misfit(&frame),
+                    Err(e) => Some(format!("{e:#}")),
+                },
+            };
+            if let Some(why) = why {
+                out.push((i, why));
+            }
+        }
+        out
     }
 
     /// The frames `pings` averaged in intensity into one (the first's geometry and time).

@@ -10,6 +10,7 @@ use epssn_ros2::fit::misfit;
 use epssn_ros2::msgs::{
     Header, ProjectedSonarImage, TransformStamped, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
 };
+use epssn_ros2::Recording;
 
 const T0: i64 = 1_700_000_000_000_000_000;
 
@@ -248,6 +249,38 @@ fn fans_that_do_not_cover_the_model_are_refused_by_name() {
         far.starts_with("range window 5.000–40.000 m") && !far.contains(';'),
         "{far}"
     );
+}
+
+/// A sonar's range can change in mid-recording: each ping's fan is checked, the ones that do
+/// not fit are named, and the bag is refused only when none fits.
+#[test]
+fn every_ping_is_checked_not_the_first_only() {
+    let (az, ranges, c, _, _) = aris_geometry();
+    let far: Vec<f32> = ranges.iter().map(|r| r + 3.0).collect();
+    let fit = encode::cdr::sonar_image(&ping(T0, &az, &ranges, c, |_, _| 1));
+    let moved = encode::cdr::sonar_image(&ping(T0 + 1, &az, &far, c, |_, _| 1));
+    let recording = |pings: &[&Vec<u8>]| {
+        let entries: Vec<Entry> = pings
+            .iter()
+            .map(|d| Entry {
+                topic: "/sonar",
+                schema: PROJECTED_SONAR_IMAGE,
+                log_time: 0,
+                data: d.as_slice(),
+            })
+            .collect();
+        Recording::Bag(BagRecording::from_bytes(&bag(&entries, Compression::None), None).unwrap())
+    };
+    let mixed = recording(&[&fit, &moved, &fit]);
+    let misfits = mixed.misfit_frames();
+    assert_eq!(misfits.len(), 1, "{misfits:?}");
+    assert_eq!(misfits[0].0, 1);
+    assert!(misfits[0].1.starts_with("range window"), "{misfits:?}");
+    assert_eq!(mixed.geometry_mismatch().unwrap(), None);
+    let none = recording(&[&moved, &moved]);
+    assert_eq!(none.misfit_frames().len(), 2);
+    let why = none.geometry_mismatch().unwrap().unwrap();
+    assert!(why.starts_with("range window"), "{why}");
 }
 
 #[test]

@@ -311,6 +311,15 @@ pub(crate) fn prepare_frames(
     let mut ws = Box::new(Workspace::new());
     let mut cache = Box::new(FeatureCache::new());
     let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
+    // The SIL streams every frame in order, as a vehicle's host would: one whose own window
+    // or fan does not fit would reach the device as zeros, so it is refused, not skipped.
+    if let Some((i, why)) = reader.misfit_frames().into_iter().find(|&(i, _)| i < n) {
+        bail!(
+            "{}: frame {i} does not fit the model ({}): {why}",
+            path.display(),
+            config::SPEC_NAME
+        );
+    }
     let mut out: Vec<HostFrame> = Vec::new();
     for i in 0..n {
         let frame = reader.frame(i)?;
