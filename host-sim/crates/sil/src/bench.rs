@@ -32,7 +32,7 @@ fn parse_line(line: &str) -> Option<(String, u64)> {
 pub fn run(args: &BenchOptions, out: &mut impl Write) -> Result<()> {
     let elf = match &args.firmware {
         Some(p) => p.clone(),
-        None => crate::sil::build_firmware_with(args.target, None)?,
+        None => crate::firmware::build_firmware_with(args.target, None)?,
     };
     let o = args
         .target

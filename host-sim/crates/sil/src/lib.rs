@@ -6,7 +6,8 @@
 //! `sil` orchestrates a run; `faults` generates every fault it sends (the campaign, the soak's
 //! blocks, the fuzz run); both talk to the device through `device` (QEMU or a serial port, the
 //! reply reader, message bytes), which knows neither; `mcap_out` writes `sil --mcap`;
-//! `update` is the model update client (`host-sim push`) and `sil --update`'s check.
+//! `update` is the model update client (`host-sim push`) and `sil --update`'s check; both
+//! stream frames prepared on the host through `stream`, and run the image `firmware` builds.
 
 #![deny(missing_docs)]
 
@@ -14,9 +15,11 @@ pub mod bench;
 pub mod budgets;
 mod device;
 pub mod faults;
+pub mod firmware;
 pub mod mcap_out;
 pub mod resets;
 pub mod serial;
 pub mod sil;
+mod stream;
 pub mod target;
 pub mod update;

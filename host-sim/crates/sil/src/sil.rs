@@ -7,30 +7,29 @@
 //! messages interleaved with status requests and checks that the firmware always answers.
 //! `--faults N` (default 2) runs the fault campaign; `--soak N` instead sends at least N valid
 //! and faulty messages in blocks and checks the stack high-water mark is unchanged. The faults
-//! of both come from `faults.rs`, the link to the device from `device.rs`; this file is the
+//! of both come from `faults.rs`, the link to the device from `device.rs`, the frames and their
+//! streaming from `stream.rs`, the firmware image from `firmware.rs`; this file is the
 //! orchestration and the report.
 //! `--serial PORT` runs the same checks against a real board (boards/stm32h743) on a serial
 //! port instead of QEMU; its figures are then core cycles, and the QEMU budgets are not applied.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, bail, Context, Result};
-use epssn::config;
+use anyhow::{bail, Context, Result};
 use epssn::link::{self, Message};
-use epssn::model::{Model, Workspace};
-use epssn::pairing::FeatureCache;
-use fixed::types::U16F16;
 use serde::Serialize;
 
-use epssn_ros2::{OpenOptions, Recording};
+use epssn_ros2::OpenOptions;
 
 use crate::device::{Device, Reply};
 pub use crate::faults::FuzzReport;
 use crate::faults::{campaign, fuzz, FaultReport};
+use crate::firmware::firmware_blob;
+pub use crate::firmware::{build_firmware, build_firmware_with, elf_sizes, TEST_UPDATE_KEY};
 use crate::mcap_out::{DeviceMap, StreamedFrame};
+use crate::stream::{prepare_frames, stream, HostFrame, Streamed};
 use crate::target::Target;
 
 /// Options of `host-sim sil`.
@@ -189,194 +188,6 @@ pub struct SilReport {
     pub budget_violations: Vec<String>,
 }
 
-/// The weight blob the firmware embeds.
-pub(crate) fn firmware_blob() -> Result<Vec<u8>> {
-    let path = epssn_reference::weights::firmware_blob_path()?;
-    std::fs::read(&path).with_context(|| format!("reading weight blob {}", path.display()))
-}
-
-/// Builds the firmware (release; cargo decides whether anything changed) for the spec this
-/// host build was generated from, and returns the ELF path. The target directory is
-/// `epssn_spec::load::per_spec_dir` of `boards/mps2-an500/target` (EPSSN-S there, any other
-/// configuration in `boards/mps2-an500/target/<spec stem>`), so the two never rebuild each
-/// other's artefacts.
-pub fn build_firmware() -> Result<PathBuf> {
-    build_firmware_with(Target::M7, None)
-}
-
-/// The test key pair's public half, from the repository root (`update/test-key/`).
-pub const TEST_UPDATE_KEY: &str = "update/test-key/public";
-
-/// [`build_firmware`] for `target_core`'s firmware crate (`boards/mps3-an547` for the M55, in
-/// its own `target/`, per spec the same way), with a cargo feature of it if given (a test
-/// build, in a target directory of its own, `<target>/<feature>`, so it never replaces the
-/// shipped build).
-pub fn build_firmware_with(target_core: Target, feature: Option<&str>) -> Result<PathBuf> {
-    let dir = epssn_spec::load::repo_root().join(target_core.crate_dir());
-    let spec_file = epssn::config::SPEC_FILE_NAME;
-    let mut target = epssn_spec::load::per_spec_dir(&dir.join("target"), spec_file);
-    let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
-    cargo.args(["build", "--release", "--quiet"]);
-    if let Some(f) = feature {
-        target = target.join(f);
-        cargo.args(["--features", f]);
-    }
-    // The update key the firmware embeds: the caller's `EPSSN_UPDATE_KEY` (the key the
-    // images it pushes are signed with), else the test key, named here explicitly (the
-    // firmware's release build takes no key by default).
-    if std::env::var_os("EPSSN_UPDATE_KEY").is_none() {
-        cargo.env("EPSSN_UPDATE_KEY", TEST_UPDATE_KEY);
-    }
-    let status = cargo
-        .arg("--target-dir")
-        .arg(&target)
-        .current_dir(&dir)
-        // The firmware is built from the same spec as this host tool (specs live in weights/).
-        .env("EPSSN_SPEC", Path::new("weights").join(spec_file))
-        // The host build's variables must not leak into the cross build.
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("RUSTFLAGS")
-        .env_remove("CARGO_ENCODED_RUSTFLAGS")
-        .env_remove("CARGO_BUILD_TARGET")
-        .stdout(Stdio::null())
-        .status()
-        .context("running cargo build for the firmware")?;
-    if !status.success() {
-        bail!("firmware build failed ({status})");
-    }
-    Ok(target_core.elf_in(&target))
-}
-
-/// Flash and static RAM of the ELF, from its section sizes.
-pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
-    use object::{Object, ObjectSection};
-    let bytes = std::fs::read(elf).with_context(|| format!("reading {}", elf.display()))?;
-    let file = object::File::parse(&*bytes).map_err(|e| anyhow!("parsing ELF: {e}"))?;
-    let size = |name: &str| {
-        file.section_by_name(name)
-            .map(|s| s.size())
-            .unwrap_or_default()
-    };
-    let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
-    // .axisram: the STM32H743 board's buffers in AXI SRAM (absent in the QEMU build).
-    let ram = size(".data") + size(".bss") + size(".uninit") + size(".axisram");
-    if flash == 0 || ram == 0 {
-        bail!(
-            "{}: no .text/.bss sections (not the firmware?)",
-            elf.display()
-        );
-    }
-    Ok((flash, ram))
-}
-
-/// One frame prepared on the host: the link message's content and the expected reply.
-pub(crate) struct HostFrame {
-    /// ARIS FrameTime, µs.
-    time_us: u64,
-    roll_deg: f32,
-    /// The header's attitude (docs/POSE.md), sent with the frame.
-    attitude: Option<epssn::attitude::Attitude>,
-    /// The host gate's rejection, when the frame forms a candidate pair it refuses.
-    rejected: Option<epssn::pairing::PairCheck>,
-    image: Vec<u8>,
-    /// `(reference, sources, depth bits)` when the frame completes a view set.
-    pub(crate) expected: Option<(u32, Vec<u32>, Vec<u32>)>,
-}
-
-/// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
-/// run` ([`Recording::geometry_mismatch`]).
-fn check_geometry(reader: &Recording) -> Result<()> {
-    if let Some(why) = reader.geometry_mismatch()? {
-        bail!(
-            "recording geometry does not fit the model ({}): {why}",
-            config::SPEC_NAME
-        );
-    }
-    Ok(())
-}
-
-/// Reads the recording, resamples every frame and runs the host library with the same
-/// pairing as the firmware.
-pub(crate) fn prepare_frames(
-    path: &Path,
-    open: &OpenOptions,
-    limit: Option<usize>,
-    blob: &[u8],
-) -> Result<Vec<HostFrame>> {
-    // An ARIS file or a ROS 2 bag's ProjectedSonarImage topic, as `run` reads it.
-    let reader = Recording::open(path, open)
-        .with_context(|| format!("opening recording {}", path.display()))?;
-    check_geometry(&reader).with_context(|| format!("{}", path.display()))?;
-    let model = Model::from_blob(blob).map_err(|e| anyhow!("weight blob refused: {e:?}"))?;
-    let mut ws = Box::new(Workspace::new());
-    let mut cache = Box::new(FeatureCache::new());
-    let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
-    // The SIL streams every frame in order, as a vehicle's host would: one whose own window
-    // or fan does not fit would reach the device as zeros, so it is refused, not skipped.
-    if let Some((i, why)) = reader.misfit_frames().into_iter().find(|&(i, _)| i < n) {
-        bail!(
-            "{}: frame {i} does not fit the model ({}): {why}",
-            path.display(),
-            config::SPEC_NAME
-        );
-    }
-    let mut out: Vec<HostFrame> = Vec::new();
-    for i in 0..n {
-        let frame = reader.frame(i)?;
-        let Some(roll) = reader.roll_deg(i).map(|r| r as f32) else {
-            bail!(
-                "frame {i} has no roll to pair by (an ARIS file: neither SonarRoll nor \
-                 RollAbsPosition; a bag: no transform of its frame in /tf)"
-            );
-        };
-        let image = frame.to_polar()?;
-        let seq = i as u32 + 1;
-        let attitude = reader.attitude(i);
-        let newest = cache
-            .insert_with_attitude(seq, roll, attitude, |f| model.features(&image, &mut ws, f))
-            .map_err(|e| anyhow!("host features of frame {i}: {e:?}"))?;
-        let found = cache.find_checked(&newest, model.views());
-        let rejected = found.as_ref().and_then(|r| r.as_ref().err()).copied();
-        let expected = match found.and_then(|r| r.ok()) {
-            Some(set) => {
-                let reference = set.reference().context("empty view set")?;
-                // Frame seq s is frame s − 1 of the recording: this one or one already pushed.
-                let image_of = |s: u32| -> &[u8] {
-                    if s == seq {
-                        &image
-                    } else {
-                        &out[s as usize - 1].image
-                    }
-                };
-                let views: Vec<&[u8]> = core::iter::once(reference.seq)
-                    .chain(set.sources().iter().map(|f| f.seq))
-                    .map(image_of)
-                    .collect();
-                let mut features = vec![0i8; views.len() * config::FEATURE_LEN];
-                let mut depth = vec![U16F16::ZERO; config::DEPTH_LEN];
-                model
-                    .depth(&views, &mut features, &mut ws, &mut depth)
-                    .map_err(|e| anyhow!("host depth of frame {i}: {e:?}"))?;
-                Some((
-                    reference.seq,
-                    set.sources().iter().map(|f| f.seq).collect(),
-                    depth.iter().map(|d| d.to_bits()).collect(),
-                ))
-            }
-            None => None,
-        };
-        out.push(HostFrame {
-            time_us: frame.time_us,
-            roll_deg: roll,
-            attitude,
-            rejected,
-            image,
-            expected,
-        });
-    }
-    Ok(out)
-}
-
 /// Frames streamed again after the fault campaign (enough for a few depth maps).
 pub(crate) const AFTER_FAULTS_FRAMES: usize = 6;
 
@@ -384,102 +195,6 @@ pub(crate) const AFTER_FAULTS_FRAMES: usize = 6;
 fn board_elf() -> PathBuf {
     epssn_spec::load::repo_root()
         .join("boards/stm32h743/target/thumbv7em-none-eabihf/release/epssn-stm32h743")
-}
-
-/// What streaming frames gave.
-pub(crate) struct Streamed {
-    pub(crate) depth_maps: usize,
-    pub(crate) mismatched: usize,
-    pub(crate) pairs_ok: bool,
-    instructions: Vec<u32>,
-    pairs: Vec<(u32, Vec<u32>)>,
-    /// `(reference, source, reason)` of each pair the device's gate rejected.
-    rejected: Vec<(u32, u32, String)>,
-    /// Every device rejection equals the host's (pair and reason), and there are no others.
-    rejections_agree: bool,
-    /// The depth maps as the device sent them.
-    maps: Vec<DeviceMap>,
-}
-
-/// Streams `frames` with seqs from `seq + 1` (frame i has seq i + 1 when `seq` starts at 0,
-/// as the host's expectations assume) and checks each reply against the host library.
-pub(crate) fn stream(device: &mut Device, frames: &[HostFrame], seq: &mut u32) -> Result<Streamed> {
-    let mut depth_maps = 0;
-    let mut mismatched = 0;
-    let mut pairs_ok = true;
-    let mut instructions = Vec::new();
-    let mut pairs = Vec::new();
-    let mut rejected = Vec::new();
-    let mut rejections_agree = true;
-    let mut maps = Vec::new();
-    for (i, f) in frames.iter().enumerate() {
-        *seq += 1;
-        device.send_msg(&Message::Frame {
-            seq: *seq,
-            roll_deg: f.roll_deg,
-            attitude: f.attitude,
-            image: &f.image,
-        })?;
-        match (device.reply()?, &f.expected) {
-            (
-                Reply::Depth {
-                    reference,
-                    sources,
-                    instructions: instr,
-                    bits,
-                },
-                Some((eref, esrc, ebits)),
-            ) => {
-                depth_maps += 1;
-                instructions.push(instr);
-                let same_pair = reference == *eref && sources == *esrc;
-                pairs_ok &= same_pair;
-                let differ = bits.iter().zip(ebits).filter(|(a, b)| a != b).count()
-                    + bits.len().abs_diff(ebits.len());
-                mismatched += differ;
-                maps.push(DeviceMap {
-                    reference,
-                    sources: sources.clone(),
-                    instructions: instr,
-                    bit_exact: same_pair && differ == 0,
-                    bits,
-                });
-                pairs.push((reference, sources));
-            }
-            (Reply::Status(st), None) => {
-                // The device's verdict on the candidate this frame formed, against the host's.
-                let device = st.pair.filter(|p| !p.verdict.accepted());
-                let key = |p: &epssn::pairing::PairCheck| (p.reference, p.source, p.verdict);
-                rejections_agree &= device.as_ref().map(key) == f.rejected.as_ref().map(key);
-                if let Some(p) = device {
-                    rejected.push((p.reference, p.source, p.verdict.reason().to_string()));
-                }
-            }
-            (r, e) => bail!(
-                "frame {i}: reply {:?} but the host expected {}",
-                match r {
-                    Reply::Depth {
-                        reference, sources, ..
-                    } => format!("depth ({reference}, {sources:?})"),
-                    other => format!("{other:?}"),
-                },
-                match e {
-                    Some((r, s, _)) => format!("a depth map of ({r}, {s:?})"),
-                    None => "a status (no pair yet)".into(),
-                }
-            ),
-        }
-    }
-    Ok(Streamed {
-        depth_maps,
-        mismatched,
-        pairs_ok,
-        instructions,
-        pairs,
-        rejected,
-        rejections_agree,
-        maps,
-    })
 }
 
 /// The soak of `--soak n`: blocks of one fault round of every class (a new seed each) and the

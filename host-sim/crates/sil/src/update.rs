@@ -20,7 +20,7 @@ use serde::Serialize;
 
 use crate::device::{Device, Reply};
 use crate::resets::hello;
-use crate::sil::{prepare_frames, stream, HostFrame};
+use crate::stream::{prepare_frames, stream, HostFrame};
 
 /// A refusal by the device: its error code and text.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -583,7 +583,7 @@ pub fn push(o: &PushOptions, out: &mut impl std::io::Write) -> Result<()> {
         (None, true) => {
             let elf = match &o.firmware {
                 Some(p) => p.clone(),
-                None => crate::sil::build_firmware()?,
+                None => crate::firmware::build_firmware()?,
             };
             Device::boot(&elf, timeout, crate::target::Target::M7)?
         }
