@@ -376,6 +376,56 @@ fn close(device: &mut Device, seq: &mut u32) -> Result<(link::Status, bool, bool
     Ok((status, shutdown_ok, exited))
 }
 
+/// `--fuzz N`: N malformed messages, interleaved with status requests.
+fn fuzz_if_asked(
+    args: &SilOptions,
+    device: &mut Device,
+    seq: &mut u32,
+    frames: &[HostFrame],
+) -> Result<Option<FuzzReport>> {
+    if args.fuzz == 0 {
+        return Ok(None);
+    }
+    Ok(Some(fuzz(
+        device,
+        args.fuzz,
+        args.seed,
+        seq,
+        &frames[0].image,
+    )?))
+}
+
+/// `--update S`: the refusals, the seeded resets and the update (`crate::update`).
+fn update_if_asked(
+    args: &SilOptions,
+    device: &mut Device,
+    recording: &Path,
+    open: &OpenOptions,
+    frames: &[HostFrame],
+) -> Result<Option<crate::update::UpdateReport>> {
+    let Some(image) = &args.update else {
+        return Ok(None);
+    };
+    let input = crate::update::UpdateInput {
+        image,
+        recording,
+        open,
+        frames: args.frames,
+        old: frames,
+        faults: args.update_faults,
+        seed: args.seed,
+    };
+    Ok(Some(crate::update::check_update(device, &input)?))
+}
+
+/// The mean of the per-map counts (0 for none).
+fn mean_instructions(instructions: &[u32]) -> u64 {
+    if instructions.is_empty() {
+        return 0;
+    }
+    instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
+}
+
 /// Runs the SIL and returns the report.
 pub fn sil(args: &SilOptions) -> Result<SilReport> {
     let recording = args
@@ -405,17 +455,7 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
         rejections_agree,
         maps,
     } = stream(&mut device, &frames, &mut seq)?;
-    let fuzz_report = if args.fuzz > 0 {
-        Some(fuzz(
-            &mut device,
-            args.fuzz,
-            args.seed,
-            &mut seq,
-            &frames[0].image,
-        )?)
-    } else {
-        None
-    };
+    let fuzz_report = fuzz_if_asked(args, &mut device, &mut seq, &frames)?;
     let faults_start = Instant::now();
     let AfterFaults {
         faults,
@@ -428,28 +468,10 @@ pub fn sil(args: &SilOptions) -> Result<SilReport> {
     } else {
         None
     };
-    let update = match &args.update {
-        Some(image) => Some(crate::update::check_update(
-            &mut device,
-            &crate::update::UpdateInput {
-                image,
-                recording: &recording,
-                open: &open,
-                frames: args.frames,
-                old: &frames,
-                faults: args.update_faults,
-                seed: args.seed,
-            },
-        )?),
-        None => None,
-    };
+    let update = update_if_asked(args, &mut device, &recording, &open, &frames)?;
     let (status, shutdown_ok, exited) = close(&mut device, &mut seq)?;
     let expected_depth_maps = frames.iter().filter(|f| f.expected.is_some()).count();
-    let mean = if instructions.is_empty() {
-        0
-    } else {
-        instructions.iter().map(|&x| u64::from(x)).sum::<u64>() / instructions.len() as u64
-    };
+    let mean = mean_instructions(&instructions);
     // The deepest stack seen: at the end, or at an update's commit (whose switch resets the
     // board and paints the stack anew).
     let stack = update
