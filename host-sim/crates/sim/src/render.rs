@@ -382,19 +382,7 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
     let ns = profiles.first().map_or(0, |p| p.intensity.len());
     // The pulse is `params`' own (the fit's candidates form with other pulses than traced).
     let intensity = intensities(traced, params);
-    // The floor at each sample: level everywhere unless it has a slope with range.
-    let floor: Vec<f64> = if params.noise_floor_db_per_m != 0.0 {
-        let ranges = params.sample_ranges();
-        (0..ns)
-            .map(|s| {
-                let r = ranges.start + ranges.step * s as f64;
-                let db = params.noise_floor_db_per_m * (r - params.reference_range_m);
-                params.noise_floor * 10f64.powf(db / 10.0)
-            })
-            .collect()
-    } else {
-        vec![params.noise_floor; ns]
-    };
+    let floor = noise_floor_profile(params, ns);
     // The fan's mean at each range, for the far side lobes (none by default).
     let fan_mean: Vec<f64> = if params.sidelobe > 0.0 {
         (0..ns)
@@ -479,6 +467,33 @@ pub fn form_image(traced: &TracedView, params: &SonarSimParams) -> RenderedView 
         })
         .collect();
 
+    interleave(&columns, profiles, ns, recorded_pings)
+}
+
+/// The noise floor at each of `ns` samples: level everywhere unless it has a slope with range.
+fn noise_floor_profile(params: &SonarSimParams, ns: usize) -> Vec<f64> {
+    if params.noise_floor_db_per_m == 0.0 {
+        return vec![params.noise_floor; ns];
+    }
+    let ranges = params.sample_ranges();
+    (0..ns)
+        .map(|s| {
+            let r = ranges.start + ranges.step * s as f64;
+            let db = params.noise_floor_db_per_m * (r - params.reference_range_m);
+            params.noise_floor * 10f64.powf(db / 10.0)
+        })
+        .collect()
+}
+
+/// The formed beams' columns (and their recorded pings) laid out range-major as a frame, with
+/// the traced weights beside them.
+fn interleave(
+    columns: &[(Vec<u8>, Vec<Vec<u8>>)],
+    profiles: &[BeamProfile],
+    ns: usize,
+    recorded_pings: usize,
+) -> RenderedView {
+    let beams = columns.len();
     let mut samples = vec![0u8; ns * beams];
     let mut weight = vec![0.0; ns * beams];
     let mut weighted_elevation = vec![0.0; ns * beams];
