@@ -7,7 +7,7 @@ use std::convert::Infallible;
 
 use epssn::config;
 use epssn::fault::{Record, ResetCause};
-use epssn::link::{encode, Decoder, ErrorCode, Message, Status};
+use epssn::link::{encode, DecodeError, Decoder, ErrorCode, Message, Status};
 use epssn::model::{Model, Workspace};
 use epssn::pairing::FeatureCache;
 use epssn::server::Server;
@@ -200,54 +200,61 @@ fn wire(msgs: &[Message<'_>]) -> Vec<u8> {
     out
 }
 
-fn replies(bytes: &[u8]) -> Vec<Reply> {
+/// Calls `each` with every message decoded from the server's output, in order.
+fn each_message(bytes: &[u8], mut each: impl FnMut(Result<Message<'_>, DecodeError>)) {
     let mut decoder = Decoder::new();
-    let mut out = Vec::new();
     for &b in bytes {
         decoder.push(b);
         while let Some(event) = decoder.poll() {
-            out.push(match event.expect("the server's replies decode") {
-                Message::Depth {
-                    reference,
-                    sources,
-                    depth,
-                    ..
-                } => Reply::Depth {
-                    reference,
-                    sources: sources.to_vec(),
-                    bits: (0..depth.len())
-                        .map(|i| depth.get(i).unwrap().to_bits())
-                        .collect(),
-                },
-                Message::Status {
-                    status: Status { pair: Some(p), .. },
-                    ..
-                } if !p.verdict.accepted() => Reply::Rejected {
-                    reference: p.reference,
-                    source: p.source,
-                    reason: p.verdict.reason(),
-                    residual_deg: p.residual_deg,
-                },
-                Message::Status { status, .. } => Reply::Status {
-                    frames: status.frames,
-                    depth_maps: status.depth_maps,
-                    errors: status.errors,
-                },
-                Message::Error { code, .. } => Reply::Error(code),
-                Message::Hello {
-                    seq,
-                    status: Some(status),
-                    ..
-                } => Reply::Hello {
-                    seq,
-                    frames: status.frames,
-                    errors: status.errors,
-                    cached: status.cached,
-                },
-                m => panic!("unexpected reply {m:?}"),
-            });
+            each(event);
         }
     }
+}
+
+fn replies(bytes: &[u8]) -> Vec<Reply> {
+    let mut out = Vec::new();
+    each_message(bytes, |event| {
+        out.push(match event.expect("the server's replies decode") {
+            Message::Depth {
+                reference,
+                sources,
+                depth,
+                ..
+            } => Reply::Depth {
+                reference,
+                sources: sources.to_vec(),
+                bits: (0..depth.len())
+                    .map(|i| depth.get(i).unwrap().to_bits())
+                    .collect(),
+            },
+            Message::Status {
+                status: Status { pair: Some(p), .. },
+                ..
+            } if !p.verdict.accepted() => Reply::Rejected {
+                reference: p.reference,
+                source: p.source,
+                reason: p.verdict.reason(),
+                residual_deg: p.residual_deg,
+            },
+            Message::Status { status, .. } => Reply::Status {
+                frames: status.frames,
+                depth_maps: status.depth_maps,
+                errors: status.errors,
+            },
+            Message::Error { code, .. } => Reply::Error(code),
+            Message::Hello {
+                seq,
+                status: Some(status),
+                ..
+            } => Reply::Hello {
+                seq,
+                frames: status.frames,
+                errors: status.errors,
+                cached: status.cached,
+            },
+            m => panic!("unexpected reply {m:?}"),
+        });
+    });
     out
 }
 
@@ -731,24 +738,20 @@ fn a_line_error_that_loses_bytes_costs_only_its_message() {
 
 /// The hellos the server sends: (seq, reset cause, fault record) each.
 fn hellos(bytes: &[u8]) -> Vec<(u32, Option<ResetCause>, Option<Record>)> {
-    let mut decoder = Decoder::new();
     let mut out = Vec::new();
-    for &b in bytes {
-        decoder.push(b);
-        while let Some(event) = decoder.poll() {
-            if let Ok(Message::Hello {
-                seq,
-                status: Some(_),
-                reset,
-                record,
-                ..
-            }) = event
-            {
-                let record = record.map(|r| Record::from_bytes(r).expect("a valid record"));
-                out.push((seq, reset, record));
-            }
+    each_message(bytes, |event| {
+        if let Ok(Message::Hello {
+            seq,
+            status: Some(_),
+            reset,
+            record,
+            ..
+        }) = event
+        {
+            let record = record.map(|r| Record::from_bytes(r).expect("a valid record"));
+            out.push((seq, reset, record));
         }
-    }
+    });
     out
 }
 
@@ -927,24 +930,20 @@ fn update_messages_go_to_the_boards_updates_and_hello_names_the_model() {
     server
         .serve(&mut serial, &mut MockPin::default(), &mut decoder)
         .unwrap();
-    let mut d = Decoder::new();
     let mut got = Vec::new();
-    for &b in &serial.tx {
-        d.push(b);
-        while let Some(m) = d.poll() {
-            got.push(match m.unwrap() {
-                Message::Hello {
-                    status: Some(s), ..
-                } => format!("hello {:?}", s.model),
-                Message::Upload { slot, held, .. } => {
-                    format!("upload {slot} {:?}", held.map(|h| h.held))
-                }
-                Message::Error { code, .. } => format!("error {code}"),
-                Message::Status { status, .. } => format!("status {:?}", status.model),
-                m => panic!("unexpected reply {m:?}"),
-            });
-        }
-    }
+    each_message(&serial.tx, |m| {
+        got.push(match m.unwrap() {
+            Message::Hello {
+                status: Some(s), ..
+            } => format!("hello {:?}", s.model),
+            Message::Upload { slot, held, .. } => {
+                format!("upload {slot} {:?}", held.map(|h| h.held))
+            }
+            Message::Error { code, .. } => format!("error {code}"),
+            Message::Status { status, .. } => format!("status {:?}", status.model),
+            m => panic!("unexpected reply {m:?}"),
+        });
+    });
     let old = Some(epssn::link::Serving::default());
     let new = Some(epssn::link::Serving {
         slot: Some(1),
