@@ -227,7 +227,7 @@ pub fn pair_recording(
         topic: args.topic.clone(),
     };
     let needed = if args.pairs.is_empty() { views } else { 2 };
-    let mut reader = open_recording(recording, &options, needed)?;
+    let (mut reader, misfits) = open_recording(recording, &options, needed)?;
     let mut warnings: Vec<String> = reader.warnings().to_vec();
     if let (Some(path), Recording::Bag(_)) = (&args.poses, &reader) {
         let rows = epssn_sim::poses::load(path, reader.frame_count())?;
@@ -239,7 +239,14 @@ pub fn pair_recording(
             ));
         }
     }
-    let frames = FrameViews::of(args, &reader, weights_dir, recording, &mut warnings)?;
+    let frames = FrameViews::of(
+        args,
+        &reader,
+        misfits,
+        weights_dir,
+        recording,
+        &mut warnings,
+    )?;
     let (groups, candidates) = if args.pairs.is_empty() {
         pair_by_pose(&frames, views, &mut warnings)
     } else {
@@ -260,11 +267,17 @@ pub fn pair_recording(
     })
 }
 
-/// Opens a recording that fits the model and holds at least `needed` frames.
-fn open_recording(recording: &Path, options: &OpenOptions, needed: usize) -> Result<Recording> {
+/// Opens a recording that fits the model and holds at least `needed` frames; returns it with
+/// its frames that do not fit among frames that do ([`Recording::misfit_frames`]).
+fn open_recording(
+    recording: &Path,
+    options: &OpenOptions,
+    needed: usize,
+) -> Result<(Recording, Vec<(usize, String)>)> {
     let reader = Recording::open(recording, options)
         .with_context(|| format!("opening {}", recording.display()))?;
-    if let Some(why) = reader.geometry_mismatch()? {
+    let misfits = reader.misfit_frames();
+    if let Some(why) = reader.geometry_mismatch(&misfits) {
         bail!(
             "{} does not fit the model ({}): {why}. Depth from mismatched geometry would be \
              wrong, so nothing was computed.",
@@ -286,7 +299,7 @@ fn open_recording(recording: &Path, options: &OpenOptions, needed: usize) -> Res
             }
         );
     }
-    Ok(reader)
+    Ok((reader, misfits))
 }
 
 /// Each frame's roll and attitude, and the bursts of pings averaged into one view.
@@ -303,6 +316,7 @@ impl FrameViews {
     fn of(
         args: &PairingOptions,
         reader: &Recording,
+        misfits: Vec<(usize, String)>,
         weights_dir: &Path,
         recording: &Path,
         warnings: &mut Vec<String>,
@@ -313,7 +327,7 @@ impl FrameViews {
         let mut attitudes: Vec<Option<Attitude>> = (0..reader.frame_count())
             .map(|i| frame_attitude(reader, i))
             .collect();
-        let misfits: BTreeMap<usize, String> = reader.misfit_frames().into_iter().collect();
+        let misfits: BTreeMap<usize, String> = misfits.into_iter().collect();
         if let Some((first, why)) = misfits.iter().next() {
             warnings.push(format!(
                 "{} frame(s) whose own range window or fan does not fit the model were skipped \

@@ -125,19 +125,18 @@ impl Recording {
 
     /// Why the recording cannot feed the model, or `None` when it can: an ARIS file's sonar
     /// (system, lens, beams: `epssn_aris::polar::sensor_mismatch`), or no frame whose fan fits
-    /// (the first frame's reason). Frames that do not fit among frames that do are
-    /// [`Recording::misfit_frames`], skipped with a warning.
-    pub fn geometry_mismatch(&self) -> Result<Option<String>> {
+    /// (the first frame's reason). `misfits` are [`Recording::misfit_frames`], read once by the
+    /// caller, who skips or refuses the frames that do not fit among frames that do.
+    pub fn geometry_mismatch(&self, misfits: &[(usize, String)]) -> Option<String> {
         if let Self::Aris(r) = self {
             if let Some(why) = epssn_aris::polar::sensor_mismatch(r) {
-                return Ok(Some(why));
+                return Some(why);
             }
         }
-        let misfits = self.misfit_frames();
         if misfits.is_empty() || misfits.len() < self.frame_count() {
-            return Ok(None);
+            return None;
         }
-        Ok(misfits.into_iter().next().map(|(_, why)| why))
+        misfits.first().map(|(_, why)| why.clone())
     }
 
     /// Every frame whose own geometry does not fit the model, with why, in order: a sonar's

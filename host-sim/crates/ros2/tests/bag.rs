@@ -276,10 +276,11 @@ fn every_ping_is_checked_not_the_first_only() {
     assert_eq!(misfits.len(), 1, "{misfits:?}");
     assert_eq!(misfits[0].0, 1);
     assert!(misfits[0].1.starts_with("range window"), "{misfits:?}");
-    assert_eq!(mixed.geometry_mismatch().unwrap(), None);
+    assert_eq!(mixed.geometry_mismatch(&misfits), None);
     let none = recording(&[&moved, &moved]);
-    assert_eq!(none.misfit_frames().len(), 2);
-    let why = none.geometry_mismatch().unwrap().unwrap();
+    let misfits = none.misfit_frames();
+    assert_eq!(misfits.len(), 2);
+    let why = none.geometry_mismatch(&misfits).unwrap();
     assert!(why.starts_with("range window"), "{why}");
 }
 

@@ -32,11 +32,21 @@ pub(crate) struct HostFrame {
 }
 
 /// Refuses recordings whose geometry the model cannot use, with the same check as `host-sim
-/// run` ([`Recording::geometry_mismatch`]).
-fn check_geometry(reader: &Recording) -> Result<()> {
-    if let Some(why) = reader.geometry_mismatch()? {
+/// run` ([`Recording::geometry_mismatch`]), and, among the first `n` frames the SIL streams,
+/// any frame whose own window or fan does not fit: the SIL streams every frame in order, as a
+/// vehicle's host would, and such a frame would reach the device as zeros, so it is refused,
+/// not skipped.
+fn check_geometry(reader: &Recording, n: usize) -> Result<()> {
+    let misfits = reader.misfit_frames();
+    if let Some(why) = reader.geometry_mismatch(&misfits) {
         bail!(
             "recording geometry does not fit the model ({}): {why}",
+            config::SPEC_NAME
+        );
+    }
+    if let Some((i, why)) = misfits.into_iter().find(|&(i, _)| i < n) {
+        bail!(
+            "frame {i} does not fit the model ({}): {why}",
             config::SPEC_NAME
         );
     }
@@ -54,20 +64,11 @@ pub(crate) fn prepare_frames(
     // An ARIS file or a ROS 2 bag's ProjectedSonarImage topic, as `run` reads it.
     let reader = Recording::open(path, open)
         .with_context(|| format!("opening recording {}", path.display()))?;
-    check_geometry(&reader).with_context(|| format!("{}", path.display()))?;
+    let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
+    check_geometry(&reader, n).with_context(|| format!("{}", path.display()))?;
     let model = Model::from_blob(blob).map_err(|e| anyhow!("weight blob refused: {e:?}"))?;
     let mut ws = Box::new(Workspace::new());
     let mut cache = Box::new(FeatureCache::new());
-    let n = limit.unwrap_or(usize::MAX).min(reader.frame_count());
-    // The SIL streams every frame in order, as a vehicle's host would: one whose own window
-    // or fan does not fit would reach the device as zeros, so it is refused, not skipped.
-    if let Some((i, why)) = reader.misfit_frames().into_iter().find(|&(i, _)| i < n) {
-        bail!(
-            "{}: frame {i} does not fit the model ({}): {why}",
-            path.display(),
-            config::SPEC_NAME
-        );
-    }
     let mut out: Vec<HostFrame> = Vec::new();
     for i in 0..n {
         let frame = reader.frame(i)?;
