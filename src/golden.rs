@@ -1,20 +1,23 @@
-//! The boot self-test's golden pair (host side, feature `std`): two synthetic sonar images and
-//! the CRC-32 of the depth map a model computes from them. The firmware's build embeds the
-//! pair and its compiled-in model's CRC (`boards/selftest/build.rs`); `host-sim sign` writes an
-//! update's CRC into its signed header, so a device checks a new model bit for bit as it checks
-//! its own, before it serves.
+//! The boot self-test's golden pair: two synthetic sonar images and the CRC-32 of the depth map
+//! a model computes from them. The images and the depth map are made on the host (feature
+//! `std`): the firmware's build embeds the pair and its compiled-in model's CRC
+//! (`boards/selftest/build.rs`), and `host-sim sign` writes an update's CRC into its signed
+//! header, so a device checks a new model bit for bit as it checks its own, before it serves.
+//! The CRC is the one definition both sides compute.
 
-use std::boxed::Box;
-use std::vec;
-use std::vec::Vec;
+#[cfg(feature = "std")]
+use std::{boxed::Box, vec, vec::Vec};
 
 use fixed::types::U16F16;
 
+#[cfg(feature = "std")]
 use crate::config;
+#[cfg(feature = "std")]
 use crate::model::{Error, Model, Workspace};
 
 /// The golden pair's image `seed` (1: the reference, 2: the source): an LCG speckle over a
 /// bright arc whose range varies across the columns.
+#[cfg(feature = "std")]
 pub fn image(seed: u32) -> Vec<u8> {
     let mut s = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
     let (r, b) = (config::INPUT_RANGE_BINS, config::INPUT_COLUMNS);
@@ -33,6 +36,7 @@ pub fn image(seed: u32) -> Vec<u8> {
 }
 
 /// The depth map `model` computes from the golden pair (reference 1, source 2).
+#[cfg(feature = "std")]
 pub fn depth(model: &Model<'_>) -> Result<Vec<U16F16>, Error> {
     let mut ws = Box::new(Workspace::new());
     let (reference, source) = (image(1), image(2));

@@ -43,7 +43,6 @@ pub mod attitude;
 pub mod blob;
 pub mod config;
 pub mod fault;
-#[cfg(feature = "std")]
 pub mod golden;
 pub mod kernels;
 pub mod link;

@@ -213,11 +213,7 @@ fn golden_self_test(
         clock.units(end - last),
         unit
     ));
-    let mut crc = epssn::crc32::Crc32::new();
-    for d in depth.iter() {
-        crc.update(&d.to_bits().to_le_bytes());
-    }
-    let crc = crc.finish();
+    let crc = epssn::golden::depth_crc(&depth[..]);
     let exact = crc == golden;
     log(format_args!(
         "self-test depth map: CRC-32 {:08x}, x86 library {:08x} ({} values): {}",
