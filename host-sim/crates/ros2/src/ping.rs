@@ -6,8 +6,10 @@
 //!   X up, so Y to starboard): `atan2(−y, z)`, positive to port, as the ARIS tables count
 //!   (beam 0 right-most). Beams listed port first are reversed.
 //! - **Intensity** to u8 by the dtype ([`to_u8`]).
-//! - **Ranges** must be evenly spaced (each within 1 % of a step of the line through the first
-//!   and last); `start` is the first and `step` the mean spacing. When `ping_info.sound_speed`
+//! - **Ranges** ascending. Evenly spaced ones (each within 1 % of a step of the line through the
+//!   first and last) are taken as they are; uneven ones are resampled first ([`resample_ranges`]):
+//!   each beam's counts linearly interpolated onto as many even bins from the first range to the
+//!   last, rounded. `start` is the first and `step` the mean spacing. When `ping_info.sound_speed`
 //!   is set and both are whole microseconds of two-way travel, they are taken as those
 //!   microseconds × c/2 exactly (docs/ARIS.md's rule): the float32 of the message loses the
 //!   ARIS geometry's last bits, and this gives them back.
@@ -130,26 +132,48 @@ fn snap_to_table(az: Vec<f64>) -> Vec<f64> {
     az
 }
 
-/// The ranges as [`SampleRanges`], by the rule of the module's documentation.
-pub fn sample_ranges(ranges: &[f32], sound_speed: f32) -> Result<SampleRanges> {
+/// The message's range axis: the even bins the frame holds, and the message's own ranges when
+/// they are uneven (the frame's counts are then resampled onto the bins).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RangeAxis {
+    /// The frame's even bins.
+    pub bins: SampleRanges,
+    /// The message's ranges (m), when they are not even.
+    pub uneven: Option<Vec<f64>>,
+}
+
+/// The ranges' axis, by the rule of the module's documentation.
+pub fn range_axis(ranges: &[f32], sound_speed: f32) -> Result<RangeAxis> {
     let n = ranges.len();
     ensure!(n >= 2, "{n} range bin(s): at least 2 are needed");
     ensure!(
         ranges.iter().all(|r| r.is_finite()),
         "a range is not finite"
     );
+    if let Some(i) = (1..n).find(|&i| ranges[i] <= ranges[i - 1]) {
+        bail!(
+            "ranges are not ascending (bin {i} at {} m after {} m)",
+            ranges[i],
+            ranges[i - 1]
+        );
+    }
     let first = f64::from(ranges[0]);
     let step = (f64::from(ranges[n - 1]) - first) / (n - 1) as f64;
-    ensure!(step > 0.0, "ranges are not ascending");
-    if let Some((i, r)) = ranges
+    let even = ranges
         .iter()
         .enumerate()
-        .find(|(i, &r)| (f64::from(r) - (first + step * *i as f64)).abs() > EVEN_TOLERANCE * step)
-    {
-        bail!(
-            "ranges are not evenly spaced (bin {i} at {r} m, {:.6} m expected)",
-            first + step * i as f64
-        );
+        .all(|(i, &r)| (f64::from(r) - (first + step * i as f64)).abs() <= EVEN_TOLERANCE * step);
+    if !even {
+        let bins = SampleRanges {
+            start: first,
+            step,
+            samples: n,
+        };
+        let uneven = ranges.iter().map(|&r| f64::from(r)).collect();
+        return Ok(RangeAxis {
+            bins,
+            uneven: Some(uneven),
+        });
     }
     let (mut start, mut step_m) = (first, step);
     let c = f64::from(sound_speed);
@@ -162,11 +186,36 @@ pub fn sample_ranges(ranges: &[f32], sound_speed: f32) -> Result<SampleRanges> {
             step_m = period.round() * half;
         }
     }
-    Ok(SampleRanges {
+    let bins = SampleRanges {
         start,
         step: step_m,
         samples: n,
-    })
+    };
+    Ok(RangeAxis { bins, uneven: None })
+}
+
+/// Range-major counts (`beams` per row) at the ascending ranges `from`, linearly interpolated
+/// onto `bins` and rounded: each bin between the two message ranges around it.
+pub fn resample_ranges(data: &[u8], beams: usize, from: &[f64], bins: &SampleRanges) -> Vec<u8> {
+    let mut out = Vec::with_capacity(bins.samples * beams);
+    let mut j = 0;
+    for k in 0..bins.samples {
+        let r = bins.start + bins.step * k as f64;
+        while j + 2 < from.len() && from[j + 1] < r {
+            j += 1;
+        }
+        let t = ((r - from[j]) / (from[j + 1] - from[j])).clamp(0.0, 1.0);
+        let (lo, hi) = (
+            &data[j * beams..][..beams],
+            &data[(j + 1) * beams..][..beams],
+        );
+        out.extend(
+            lo.iter()
+                .zip(hi)
+                .map(|(&a, &b)| (f64::from(a) + t * (f64::from(b) - f64::from(a))).round() as u8),
+        );
+    }
+    out
 }
 
 /// The message as a native frame (`index` its position in the recording).
@@ -178,7 +227,8 @@ pub fn frame_of(msg: &ProjectedSonarImage, index: usize) -> Result<SonarFrame> {
         msg.image.beam_count
     );
     ensure!(beams >= 2, "{beams} beam(s): at least 2 are needed");
-    let ranges = sample_ranges(&msg.ranges, msg.ping_info.sound_speed)?;
+    let axis = range_axis(&msg.ranges, msg.ping_info.sound_speed)?;
+    let ranges = axis.bins;
     let mut data = to_u8(&msg.image)?;
     ensure!(
         data.len() == beams * ranges.samples,
@@ -187,6 +237,9 @@ pub fn frame_of(msg: &ProjectedSonarImage, index: usize) -> Result<SonarFrame> {
         ranges.samples,
         beams * ranges.samples
     );
+    if let Some(from) = &axis.uneven {
+        data = resample_ranges(&data, beams, from, &ranges);
+    }
     let mut az = azimuths(&msg.beam_directions)?;
     if az.windows(2).all(|w| w[1] < w[0]) {
         // Port first: turn each row round so beam 0 is the right-most.
@@ -293,23 +346,45 @@ mod tests {
             .map(|i| f64::from(delay) * half + f64::from(period) * half * i as f64)
             .collect();
         let written: Vec<f32> = exact.iter().map(|&r| r as f32).collect();
-        let r = sample_ranges(&written, c).unwrap();
+        let r = range_axis(&written, c).unwrap().bins;
         assert_eq!(r.start, f64::from(delay) * half);
         assert_eq!(r.step, f64::from(period) * half);
         // Without the sound speed the float32 values stand, a few ulps from the exact ones.
-        let r0 = sample_ranges(&written, 0.0).unwrap();
+        let r0 = range_axis(&written, 0.0).unwrap().bins;
         assert_eq!(r0.start, f64::from(written[0]));
         assert!((r0.step - f64::from(period) * half).abs() < 1e-8);
     }
 
     #[test]
-    fn uneven_or_unordered_ranges_are_refused() {
-        assert!(sample_ranges(&[1.0, 1.1, 1.3, 1.4], 0.0)
+    fn unordered_or_too_few_ranges_are_refused() {
+        assert!(range_axis(&[1.0, 1.2, 1.2, 1.4], 0.0)
             .unwrap_err()
             .to_string()
-            .contains("not evenly spaced"));
-        assert!(sample_ranges(&[2.0, 1.0], 0.0).is_err());
-        assert!(sample_ranges(&[2.0], 0.0).is_err());
-        assert!(sample_ranges(&[1.0, f32::NAN, 2.0], 0.0).is_err());
+            .contains("bin 2 at 1.2 m after 1.2 m"));
+        assert!(range_axis(&[2.0, 1.0], 0.0).is_err());
+        assert!(range_axis(&[2.0], 0.0).is_err());
+        assert!(range_axis(&[1.0, f32::NAN, 2.0], 0.0).is_err());
+    }
+
+    #[test]
+    fn uneven_ranges_are_resampled_onto_even_bins_from_the_first_to_the_last() {
+        // Squared spacing: 1.0, 1.1, 1.4, 1.9, 2.6 m; the even bins step 0.4 m.
+        let written = [1.0f32, 1.1, 1.4, 1.9, 2.6];
+        let axis = range_axis(&written, 1500.0).unwrap();
+        let from = axis.uneven.clone().expect("uneven");
+        assert_eq!((axis.bins.start, axis.bins.samples), (1.0, 5));
+        assert!((axis.bins.step - 0.4).abs() < 1e-6);
+        // Two beams: one linear in range (50 counts per metre), one constant.
+        let data: Vec<u8> = written
+            .iter()
+            .flat_map(|&r| [(50.0 * f64::from(r)).round() as u8, 9])
+            .collect();
+        let out = resample_ranges(&data, 2, &from, &axis.bins);
+        assert_eq!(out, [50, 9, 70, 9, 90, 9, 110, 9, 130, 9]);
+        // Within 1 % of a step of even: taken as they are.
+        assert_eq!(
+            range_axis(&[1.0, 1.1004, 1.2, 1.3], 0.0).unwrap().uneven,
+            None
+        );
     }
 }

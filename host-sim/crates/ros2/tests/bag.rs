@@ -153,14 +153,13 @@ fn port_first_beams_are_turned_round_and_a_ping_without_tf_has_no_roll() {
 /// Here a 60°, 400-beam sonar with 2 mm bins from 1 m: left of 0° it reads 100, right 200;
 /// nearer than 2.75 m it reads 20 more. Columns and bins wholly on one side read that side's
 /// value exactly (box mean along range, linear across beams).
-#[test]
-fn a_wider_finer_fan_is_resampled_onto_the_model_grid() {
-    let beams = 400;
+/// A ping of `beams` beams evenly over ±30° at `ranges`: 100 counts to starboard, 200 to port,
+/// 20 more nearer than 2.75 m; read back from a bag as frame 0.
+fn two_sided_frame(beams: usize, ranges: Vec<f32>) -> (epssn_ros2::SonarFrame, f64) {
     let half = 30f64.to_radians();
     let az: Vec<f64> = (0..beams)
         .map(|b| -half + 2.0 * half * b as f64 / (beams - 1) as f64)
         .collect();
-    let ranges: Vec<f32> = (0..2000).map(|i| 1.0 + 0.002 * i as f32).collect();
     let az2 = az.clone();
     let ranges2 = ranges.clone();
     let p = ping(T0, &az, &ranges, 0.0, move |r, b| {
@@ -180,11 +179,15 @@ fn a_wider_finer_fan_is_resampled_onto_the_model_grid() {
         .unwrap()
         .frame(0)
         .unwrap();
-    assert!(misfit(&f).is_none(), "{:?}", misfit(&f));
+    (f, 2.0 * half / (beams - 1) as f64)
+}
+
+/// The model grid's cells clear of the two edges read `two_sided_frame`'s values.
+fn assert_reads_two_sides(f: &epssn_ros2::SonarFrame, spacing: f64) {
+    assert!(misfit(f).is_none(), "{:?}", misfit(f));
     let polar = f.to_polar().unwrap();
     let cols = &config::INPUT_COLUMN_AZIMUTH_RAD;
     let bin = (config::R_MAX_M - config::R_MIN_M) / config::INPUT_RANGE_BINS as f64;
-    let spacing = 2.0 * half / (beams - 1) as f64;
     let mut checked = 0;
     for i in 0..config::INPUT_RANGE_BINS {
         let lo = config::R_MIN_M + bin * i as f64;
@@ -208,6 +211,25 @@ fn a_wider_finer_fan_is_resampled_onto_the_model_grid() {
         }
     }
     assert!(checked > config::INPUT_LEN / 2);
+}
+
+#[test]
+fn a_wider_finer_fan_is_resampled_onto_the_model_grid() {
+    let ranges = (0..2000).map(|i| 1.0 + 0.002 * i as f32).collect();
+    let (f, spacing) = two_sided_frame(400, ranges);
+    assert_reads_two_sides(&f, spacing);
+}
+
+#[test]
+fn uneven_ranges_are_resampled_onto_even_bins_first() {
+    // Spacing growing with range (0.3 mm to 3 mm), as a sonar with range-dependent bins.
+    let ranges: Vec<f32> = (0..2000)
+        .map(|i| 1.0 + 4.0 * (i as f32 / 1999.0).powf(1.5))
+        .collect();
+    let (f, spacing) = two_sided_frame(400, ranges);
+    assert_eq!((f.ranges.start, f.ranges.samples), (1.0, 2000));
+    assert!((f.ranges.step - 4.0 / 1999.0).abs() < 1e-6);
+    assert_reads_two_sides(&f, spacing);
 }
 
 /// What does not fit is named: aperture, too few beams, range window.
