@@ -13,19 +13,27 @@
 //!   (`epssn::attitude::Relative`): for a level sonar on a rotator, the rotator's roll. It
 //!   only proposes candidates; the baseline of a pair is then the twist of the two pings'
 //!   relative rotation, which the pose gate checks (docs/POSE.md) as for an ARIS file.
+//! - **Memory**: the bag is scanned once as a stream (one chunk in memory at a time); each ping
+//!   is then read again from the file by its location when asked for, its chunk decompressed
+//!   once for the pings it holds. A bag larger than memory reads as a small one.
 
-use std::path::Path;
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context, Result};
 use epssn::attitude::Attitude;
 
-use crate::decode::{self, Contents};
+use crate::decode::{self, Contents, Location};
 use crate::frame::SonarFrame;
 use crate::msgs::{
     decode_sonar_image, decode_tf_message, ProjectedSonarImage, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
 };
 use crate::ping::frame_of;
+use crate::record::Chunk;
 use crate::tf::{mul, Quat, TfTree};
+use crate::McapError;
 
 /// The rotation taking the message's axes to the sonar frame's: 180° about (X + Z)/√2, which
 /// swaps X and Z and turns Y round.
@@ -52,12 +60,71 @@ fn is_tf(name: &str) -> bool {
     name == TF_MESSAGE || name == "tf2_msgs/TFMessage"
 }
 
+/// Where a bag's bytes are read from again.
+#[derive(Debug)]
+enum Source {
+    File(PathBuf),
+    Memory(Arc<[u8]>),
+}
+
+impl Source {
+    /// The `len` bytes at `offset`.
+    fn read_at(&self, offset: u64, len: u64) -> Result<Vec<u8>, McapError> {
+        let io = |e: std::io::Error| McapError::Io(e.to_string());
+        match self {
+            Self::File(path) => {
+                let mut f = File::open(path).map_err(io)?;
+                f.seek(SeekFrom::Start(offset)).map_err(io)?;
+                let mut out = Vec::new();
+                f.take(len).read_to_end(&mut out).map_err(io)?;
+                if (out.len() as u64) < len {
+                    return Err(McapError::Changed("the file is shorter"));
+                }
+                Ok(out)
+            }
+            Self::Memory(bytes) => usize::try_from(offset)
+                .ok()
+                .zip(usize::try_from(len).ok())
+                .and_then(|(at, len)| bytes.get(at..at.checked_add(len)?))
+                .map(<[u8]>::to_vec)
+                .ok_or(McapError::Changed("the bytes are shorter")),
+        }
+    }
+}
+
+/// The bag's source and the last chunk decompressed (consecutive pings share chunks).
+#[derive(Debug)]
+struct Store {
+    source: Source,
+    last_chunk: Mutex<Option<(u64, Arc<Vec<u8>>)>>,
+}
+
+impl Store {
+    /// The message at `at`.
+    fn message(&self, at: &Location) -> Result<Vec<u8>, McapError> {
+        let record = self.source.read_at(at.record, at.record_len)?;
+        let mut chunk = |c: &Chunk<'_>| {
+            let mut last = self.last_chunk.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some((offset, records)) = last.as_ref() {
+                if *offset == at.record {
+                    return Ok(Arc::clone(records));
+                }
+            }
+            let records = Arc::new(decode::decompress(c)?);
+            *last = Some((at.record, Arc::clone(&records)));
+            Ok(records)
+        };
+        Ok(decode::fetch(&record, at, &mut chunk)?.data)
+    }
+}
+
 /// A bag's sonar pings.
 #[derive(Clone, Debug)]
 pub struct BagRecording {
     /// The topic read.
     pub topic: String,
-    messages: Vec<Vec<u8>>,
+    store: Arc<Store>,
+    locations: Vec<Location>,
     attitudes: Vec<Option<Attitude>>,
     rolls: Vec<Option<f64>>,
     warnings: Vec<String>,
@@ -66,40 +133,69 @@ pub struct BagRecording {
 impl BagRecording {
     /// Reads the bag at `path`.
     pub fn open(path: &Path, topic: Option<&str>) -> Result<Self> {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        Self::from_bytes(&bytes, topic)
+        let file = File::open(path).with_context(|| format!("reading {}", path.display()))?;
+        Self::scan(
+            BufReader::with_capacity(1 << 20, file),
+            Source::File(path.to_path_buf()),
+            topic,
+        )
+        .with_context(|| format!("reading {}", path.display()))
     }
 
     /// Reads a bag held in memory.
     pub fn from_bytes(bytes: &[u8], topic: Option<&str>) -> Result<Self> {
-        let mut contents = decode::read(bytes, &|s| is_sonar_image(s) || is_tf(s))?;
-        let (channel, topic) = choose_topic(&contents, topic)?;
-        let mut pings: Vec<(u64, Vec<u8>)> = Vec::new();
+        Self::scan(bytes, Source::Memory(bytes.into()), topic)
+    }
+
+    fn scan(reader: impl Read, source: Source, topic: Option<&str>) -> Result<Self> {
+        // Every sonar image's location, stamp and frame (the topic is chosen once the channels
+        // are all known), and the transforms as they come.
+        type Image = (u16, u64, Location, Result<(String, i64), McapError>);
+        let mut images: Vec<Image> = Vec::new();
         let mut tree = TfTree::default();
-        for m in std::mem::take(&mut contents.messages) {
-            if m.channel_id == channel {
-                pings.push((m.log_time, m.data));
-            } else if let Some(c) = contents
-                .channels
-                .get(&m.channel_id)
-                .filter(|c| is_tf(contents.schema_name(c)))
-            {
-                let transforms = decode_tf_message(&m.data)
-                    .with_context(|| format!("a TFMessage at log time {} ns", m.log_time))?;
-                tree.add(&transforms, c.topic == "/tf_static");
-            }
+        let mut bad_tf = None;
+        let contents = decode::scan(
+            reader,
+            &|s| is_sonar_image(s) || is_tf(s),
+            &mut |contents, m, at| {
+                let Some(channel) = contents.channels.get(&m.channel_id) else {
+                    return Ok(());
+                };
+                if is_tf(contents.schema_name(channel)) {
+                    match decode_tf_message(&m.data) {
+                        Ok(transforms) => tree.add(&transforms, channel.topic == "/tf_static"),
+                        Err(e) => {
+                            bad_tf.get_or_insert((m.log_time, e));
+                        }
+                    }
+                } else {
+                    // The header only (frame and stamp, for the attitude); the ping itself is
+                    // read again when asked for.
+                    let header = decode_sonar_image(&m.data)
+                        .map(|msg| (msg.header.frame_id, msg.header.stamp_ns));
+                    images.push((m.channel_id, m.log_time, at, header));
+                }
+                Ok(())
+            },
+        )?;
+        if let Some((log_time, e)) = bad_tf {
+            return Err(e).with_context(|| format!("a TFMessage at log time {log_time} ns"));
         }
+        let (channel, topic) = choose_topic(&contents, topic)?;
+        images.retain(|p| p.0 == channel);
         // Log time order; the sort is stable, so pings logged at one time keep file order.
-        pings.sort_by_key(|p| p.0);
-        let mut attitudes = Vec::with_capacity(pings.len());
+        images.sort_by_key(|p| p.1);
+        let mut attitudes = Vec::with_capacity(images.len());
         let mut frames_without = Vec::new();
-        for (i, (_, data)) in pings.iter().enumerate() {
-            let msg = decode_sonar_image(data).with_context(|| format!("{topic} ping {i}"))?;
+        let mut locations = Vec::with_capacity(images.len());
+        for (i, (_, _, at, header)) in images.into_iter().enumerate() {
+            let (frame, stamp) = header.with_context(|| format!("{topic} ping {i}"))?;
+            locations.push(at);
             let attitude = tree
-                .rotation_in_root(&msg.header.frame_id, msg.header.stamp_ns)
+                .rotation_in_root(&frame, stamp)
                 .and_then(|(q, _)| attitude_of(q));
             if attitude.is_none() {
-                frames_without.push(msg.header.frame_id);
+                frames_without.push(frame);
             }
             attitudes.push(attitude);
         }
@@ -120,7 +216,11 @@ impl BagRecording {
             .collect();
         Ok(Self {
             topic,
-            messages: pings.into_iter().map(|p| p.1).collect(),
+            store: Arc::new(Store {
+                source,
+                last_chunk: Mutex::new(None),
+            }),
+            locations,
             attitudes,
             rolls,
             warnings,
@@ -129,19 +229,23 @@ impl BagRecording {
 
     /// Pings read.
     pub fn frame_count(&self) -> usize {
-        self.messages.len()
+        self.locations.len()
     }
 
-    /// Ping `i`'s message, decoded.
+    /// Ping `i`'s message, read from the bag and decoded.
     pub fn message(&self, i: usize) -> Result<ProjectedSonarImage> {
-        let Some(data) = self.messages.get(i) else {
+        let Some(at) = self.locations.get(i) else {
             bail!(
                 "ping {i}: the bag holds {} on {}",
-                self.messages.len(),
+                self.locations.len(),
                 self.topic
             );
         };
-        decode_sonar_image(data).with_context(|| format!("{} ping {i}", self.topic))
+        let data = self
+            .store
+            .message(at)
+            .with_context(|| format!("{} ping {i}", self.topic))?;
+        decode_sonar_image(&data).with_context(|| format!("{} ping {i}", self.topic))
     }
 
     /// Ping `i` as a native frame.

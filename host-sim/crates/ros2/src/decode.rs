@@ -1,25 +1,32 @@
-//! An MCAP file read front to back: records in order, chunks decompressed (uncompressed, `lz4`
-//! frames with `lz4_flex`, `zstd` with `ruzstd`, both pure Rust) and their records read in
-//! place. The summary section and indexes are not needed for one pass and are not read.
+//! An MCAP file read front to back as a stream: records in order, chunks decompressed
+//! (uncompressed, `lz4` frames with `lz4_flex`, `zstd` with `ruzstd`, both pure Rust) and their
+//! records read in place, one chunk in memory at a time. Each kept message is handed over with
+//! its [`Location`], from which [`fetch`] reads it again later: a bag far larger than memory is
+//! scanned once and its pings read one by one. The summary section and indexes are not needed
+//! for one pass and are not read.
 
 use std::collections::BTreeMap;
-use std::io::Read;
+use std::io::{self, Read};
+use std::sync::Arc;
 
-use crate::header::{is_mcap, Cursor, MAGIC};
+use crate::header::{is_mcap, op, Cursor, MAGIC};
 use crate::record::{self, Channel, Chunk, Message, Record, Schema};
 use crate::McapError;
 
 /// Largest chunk this reader decompresses, bytes: a corrupt size must not allocate the heap away.
 pub const MAX_CHUNK_BYTES: u64 = 1 << 28;
 
-/// Every schema, channel and message of a file (messages in file order).
+/// Largest record this reader reads into memory (a chunk's compressed records, a message).
+pub const MAX_RECORD_BYTES: u64 = 1 << 28;
+
+/// Every schema and channel of a file, and the messages [`read`] kept (in file order).
 #[derive(Clone, Debug, Default)]
 pub struct Contents {
     /// Schemas by id.
     pub schemas: BTreeMap<u16, Schema>,
     /// Channels by id.
     pub channels: BTreeMap<u16, Channel>,
-    /// Messages, in file order.
+    /// Messages, in file order ([`read`] only; [`scan`] hands them over instead).
     pub messages: Vec<Message>,
 }
 
@@ -32,33 +39,157 @@ impl Contents {
     }
 }
 
+/// Where a message lies in its file: the top-level record holding it (a message record, or the
+/// chunk it is inside) and, for a chunked one, its record's body in the decompressed chunk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Location {
+    /// File offset of the top-level record's body, bytes.
+    pub record: u64,
+    /// Length of that body, bytes.
+    pub record_len: u64,
+    /// For a message inside a chunk: its record body's offset and length in the decompressed
+    /// records.
+    pub in_chunk: Option<(u64, u64)>,
+}
+
 /// Reads a whole MCAP file held in `bytes`. `keep` says, from a channel's schema name, whether
 /// its messages are kept (the others are dropped as they are read, sparing the memory).
 pub fn read(bytes: &[u8], keep: &dyn Fn(&str) -> bool) -> Result<Contents, McapError> {
-    if !is_mcap(bytes) {
+    let mut kept = Vec::new();
+    let mut contents = scan(bytes, keep, &mut |_, m, _| {
+        kept.push(m);
+        Ok(())
+    })?;
+    contents.messages = kept;
+    Ok(contents)
+}
+
+/// Reads an MCAP stream front to back, handing each message of a kept channel to `visit` with
+/// the schemas and channels read so far and its location; returns the schemas and channels.
+pub fn scan(
+    mut reader: impl Read,
+    keep: &dyn Fn(&str) -> bool,
+    visit: &mut dyn FnMut(&Contents, Message, Location) -> Result<(), McapError>,
+) -> Result<Contents, McapError> {
+    let mut magic = [0u8; MAGIC.len()];
+    if read_full(&mut reader, &mut magic)? < magic.len() || !is_mcap(&magic) {
         return Err(McapError::Magic);
     }
-    let mut c = Cursor::new(&bytes[MAGIC.len()..]);
+    let mut pos = MAGIC.len() as u64;
     let mut out = Contents::default();
     loop {
-        if c.remaining() == 0 {
+        let mut head = [0u8; 9];
+        match read_full(&mut reader, &mut head)? {
             // A file cut before its footer (a recorder that was killed): what was read stands.
-            return Ok(out);
+            0 => return Ok(out),
+            9 => {}
+            _ => return Err(McapError::Truncated(pos as usize)),
         }
-        let (opcode, body) = next_record(&mut c)?;
-        match record::parse(opcode, body)? {
+        let opcode = head[0];
+        let len = u64::from_le_bytes(head[1..].try_into().expect("8 bytes"));
+        let body_at = pos + 9;
+        pos = body_at.saturating_add(len);
+        if !matches!(
+            opcode,
+            op::SCHEMA | op::CHANNEL | op::MESSAGE | op::CHUNK | op::FOOTER
+        ) {
+            let skipped = io::copy(&mut (&mut reader).take(len), &mut io::sink())
+                .map_err(|e| McapError::Io(e.to_string()))?;
+            if skipped < len {
+                return Err(McapError::Truncated(body_at as usize));
+            }
+            continue;
+        }
+        let body = read_body(&mut reader, len, body_at)?;
+        let top = Location {
+            record: body_at,
+            record_len: len,
+            in_chunk: None,
+        };
+        match record::parse(opcode, &body)? {
             Record::Footer => return Ok(out),
             Record::Chunk(chunk) => {
                 let records = decompress(&chunk)?;
                 let mut inner = Cursor::new(&records);
                 while inner.remaining() > 0 {
                     let (opcode, body) = next_record(&mut inner)?;
-                    take(record::parse(opcode, body)?, &mut out, keep)?;
+                    let at = (inner.position() - body.len()) as u64;
+                    let location = Location {
+                        in_chunk: Some((at, body.len() as u64)),
+                        ..top
+                    };
+                    take(
+                        record::parse(opcode, body)?,
+                        &mut out,
+                        keep,
+                        location,
+                        visit,
+                    )?;
                 }
             }
-            r => take(r, &mut out, keep)?,
+            r => take(r, &mut out, keep, top, visit)?,
         }
     }
+}
+
+/// Decompresses a chunk's records, or answers from a cache.
+pub type ChunkRecords<'a> = dyn FnMut(&Chunk<'_>) -> Result<Arc<Vec<u8>>, McapError> + 'a;
+
+/// Reads the message at `location` from the top-level record's body `record` (as read from
+/// the file at `location.record`); `chunk` decompresses a chunk's records (a cache may answer).
+pub fn fetch(
+    record: &[u8],
+    location: &Location,
+    chunk: &mut ChunkRecords<'_>,
+) -> Result<Message, McapError> {
+    let message = |body: &[u8]| match record::parse(op::MESSAGE, body)? {
+        Record::Message(m) => Ok(m),
+        _ => Err(McapError::Changed("no message record there")),
+    };
+    let Some((at, len)) = location.in_chunk else {
+        return message(record);
+    };
+    let Record::Chunk(c) = record::parse(op::CHUNK, record)? else {
+        return Err(McapError::Changed("no chunk record there"));
+    };
+    let records = chunk(&c)?;
+    let body = usize::try_from(at)
+        .ok()
+        .zip(usize::try_from(len).ok())
+        .and_then(|(at, len)| records.get(at..at.checked_add(len)?))
+        .ok_or(McapError::Changed("the chunk is shorter"))?;
+    message(body)
+}
+
+/// Fills `buf` as far as the stream goes; how many bytes it read.
+fn read_full(reader: &mut impl Read, buf: &mut [u8]) -> Result<usize, McapError> {
+    let mut n = 0;
+    while n < buf.len() {
+        match reader.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(McapError::Io(e.to_string())),
+        }
+    }
+    Ok(n)
+}
+
+/// A record's body of `len` bytes, growing as the bytes arrive (a corrupt length allocates no
+/// more than the file holds).
+fn read_body(reader: &mut impl Read, len: u64, at: u64) -> Result<Vec<u8>, McapError> {
+    if len > MAX_RECORD_BYTES {
+        return Err(McapError::RecordTooLarge(len));
+    }
+    let mut body = Vec::new();
+    reader
+        .take(len)
+        .read_to_end(&mut body)
+        .map_err(|e| McapError::Io(e.to_string()))?;
+    if (body.len() as u64) < len {
+        return Err(McapError::Truncated(at as usize));
+    }
+    Ok(body)
 }
 
 /// One record's opcode and body.
@@ -68,7 +199,13 @@ fn next_record<'a>(c: &mut Cursor<'a>) -> Result<(u8, &'a [u8]), McapError> {
     Ok((opcode, c.take(len)?))
 }
 
-fn take(r: Record<'_>, out: &mut Contents, keep: &dyn Fn(&str) -> bool) -> Result<(), McapError> {
+fn take(
+    r: Record<'_>,
+    out: &mut Contents,
+    keep: &dyn Fn(&str) -> bool,
+    location: Location,
+    visit: &mut dyn FnMut(&Contents, Message, Location) -> Result<(), McapError>,
+) -> Result<(), McapError> {
     match r {
         Record::Schema(s) => {
             out.schemas.insert(s.id, s);
@@ -82,7 +219,7 @@ fn take(r: Record<'_>, out: &mut Contents, keep: &dyn Fn(&str) -> bool) -> Resul
                 .get(&m.channel_id)
                 .ok_or(McapError::UnknownChannel(m.channel_id))?;
             if keep(out.schema_name(channel)) {
-                out.messages.push(m);
+                visit(out, m, location)?;
             }
         }
         Record::Chunk(_) => return Err(McapError::NestedChunk),

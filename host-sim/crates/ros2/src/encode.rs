@@ -43,11 +43,14 @@ fn record(out: &mut Vec<u8>, opcode: u8, body: &[u8]) {
 }
 
 /// The schema, channel and message records of `entries` (a schema and a channel per
-/// distinct schema and topic, ids from 1).
-fn records(entries: &[Entry<'_>]) -> Vec<u8> {
+/// distinct schema and topic, ids from 1, written before their first message; `schemas` and
+/// `topics` hold those already written).
+fn records<'e>(
+    entries: &[Entry<'e>],
+    schemas: &mut Vec<&'e str>,
+    topics: &mut Vec<&'e str>,
+) -> Vec<u8> {
     let mut out = Vec::new();
-    let mut schemas: Vec<&str> = Vec::new();
-    let mut topics: Vec<&str> = Vec::new();
     for e in entries {
         let schema_id = match schemas.iter().position(|s| *s == e.schema) {
             Some(i) => i + 1,
@@ -86,28 +89,41 @@ fn records(entries: &[Entry<'_>]) -> Vec<u8> {
 
 /// A whole MCAP file of `entries`, in one chunk compressed as `compression`.
 pub fn bag(entries: &[Entry<'_>], compression: Compression) -> Vec<u8> {
-    let inner = records(entries);
-    let (name, packed) = match compression {
-        Compression::None => ("", inner.clone()),
-        Compression::Lz4 => {
-            let mut enc = lz4_flex::frame::FrameEncoder::new(Vec::new());
-            // Writing to a Vec does not fail.
-            let _ = enc.write_all(&inner);
-            ("lz4", enc.finish().unwrap_or_default())
-        }
-        Compression::Zstd => (
-            "zstd",
-            ruzstd::encoding::compress_to_vec(
-                inner.as_slice(),
-                ruzstd::encoding::CompressionLevel::Fastest,
-            ),
-        ),
-    };
+    bag_in_chunks(entries, compression, entries.len().max(1))
+}
+
+/// A whole MCAP file of `entries`, `per_chunk` entries to a chunk compressed as `compression`.
+pub fn bag_in_chunks(entries: &[Entry<'_>], compression: Compression, per_chunk: usize) -> Vec<u8> {
     let mut out = MAGIC.to_vec();
     let mut header = Vec::new();
     string(&mut header, "ros2");
     string(&mut header, "epssn-ros2 test writer");
     record(&mut out, op::HEADER, &header);
+    let (mut schemas, mut topics) = (Vec::new(), Vec::new());
+    for part in entries.chunks(per_chunk.max(1)) {
+        let inner = records(part, &mut schemas, &mut topics);
+        record(&mut out, op::CHUNK, &chunk(part, &inner, compression));
+    }
+    record(&mut out, op::FOOTER, &[0u8; 20]);
+    out.extend(MAGIC);
+    out
+}
+
+/// A chunk record's body: `entries`' records `inner`, compressed.
+fn chunk(entries: &[Entry<'_>], inner: &[u8], compression: Compression) -> Vec<u8> {
+    let (name, packed) = match compression {
+        Compression::None => ("", inner.to_vec()),
+        Compression::Lz4 => {
+            let mut enc = lz4_flex::frame::FrameEncoder::new(Vec::new());
+            // Writing to a Vec does not fail.
+            let _ = enc.write_all(inner);
+            ("lz4", enc.finish().unwrap_or_default())
+        }
+        Compression::Zstd => (
+            "zstd",
+            ruzstd::encoding::compress_to_vec(inner, ruzstd::encoding::CompressionLevel::Fastest),
+        ),
+    };
     let mut chunk = Vec::new();
     let first = entries.iter().map(|e| e.log_time).min().unwrap_or(0);
     let last = entries.iter().map(|e| e.log_time).max().unwrap_or(0);
@@ -118,10 +134,7 @@ pub fn bag(entries: &[Entry<'_>], compression: Compression) -> Vec<u8> {
     string(&mut chunk, name);
     chunk.extend((packed.len() as u64).to_le_bytes());
     chunk.extend(&packed);
-    record(&mut out, op::CHUNK, &chunk);
-    record(&mut out, op::FOOTER, &[0u8; 20]);
-    out.extend(MAGIC);
-    out
+    chunk
 }
 
 /// A ping of a sonar whose beams lie at `azimuths` (rad, in the message's Y-Z plane: Z forward,

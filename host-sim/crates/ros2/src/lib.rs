@@ -65,4 +65,13 @@ pub enum McapError {
     /// A CDR message that cannot be decoded.
     #[error("CDR: {0}")]
     Cdr(&'static str),
+    /// A record declares more bytes than this reader reads into memory.
+    #[error("record of {0} bytes is larger than the reader's limit")]
+    RecordTooLarge(u64),
+    /// Reading the file failed.
+    #[error("reading the bag: {0}")]
+    Io(String),
+    /// A message is not where the first pass found it: the file changed since.
+    #[error("the bag changed since it was opened: {0}")]
+    Changed(&'static str),
 }

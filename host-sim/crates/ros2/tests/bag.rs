@@ -121,6 +121,55 @@ fn every_compression_reads_back_the_aris_geometry_exactly_with_rolls_from_tf() {
 }
 
 #[test]
+fn a_bag_file_is_read_ping_by_ping_from_its_chunks() {
+    // Five pings, two entries (a transform and a ping) to a chunk: three chunks, read from a
+    // file in an order that crosses them back and forth.
+    let (az, ranges, c, _, _) = aris_geometry();
+    let images: Vec<Vec<u8>> = (0..5)
+        .map(|k| {
+            let p = ping(T0 + k * 1000, &az, &ranges, c, |r, b| {
+                ((r + 7 * b + 11 * k as usize) % 253) as u8
+            });
+            encode::cdr::sonar_image(&p)
+        })
+        .collect();
+    let tfs: Vec<Vec<u8>> = (0..5)
+        .map(|k| encode::cdr::tf_message(&[tf(T0 + k * 1000, 7.0 * k as f64)]))
+        .collect();
+    let whole = bag(&entries(&images, &tfs), Compression::Zstd);
+    let in_memory = BagRecording::from_bytes(&whole, None).unwrap();
+    for compression in [Compression::None, Compression::Lz4, Compression::Zstd] {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pings.mcap");
+        std::fs::write(
+            &path,
+            encode::bag_in_chunks(&entries(&images, &tfs), compression, 2),
+        )
+        .unwrap();
+        let rec = BagRecording::open(&path, None).unwrap();
+        assert_eq!(rec.frame_count(), 5);
+        for k in [4, 0, 3, 1, 2, 2, 0] {
+            let f = rec.frame(k).unwrap();
+            assert_eq!(
+                f.data,
+                in_memory.frame(k).unwrap().data,
+                "{compression:?} ping {k}"
+            );
+            assert_eq!(f.data[9 * 128 + 5], ((9 + 7 * 5 + 11 * k) % 253) as u8);
+            assert_eq!(rec.roll_deg(k), in_memory.roll_deg(k));
+        }
+        // A file cut after it was opened: the pings past the cut are refused, no panic.
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+        let err = rec.frame(4).unwrap_err();
+        assert!(
+            format!("{err:#}").contains("changed since it was opened"),
+            "{err:#}"
+        );
+    }
+}
+
+#[test]
 fn port_first_beams_are_turned_round_and_a_ping_without_tf_has_no_roll() {
     let (mut az, ranges, c, _, _) = aris_geometry();
     az.reverse();
