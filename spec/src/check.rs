@@ -538,6 +538,30 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_weights_folder_holds_a_shipped_specs_bytes() {
+        // A folder's spec.json names the spec its blob is stamped for: a stale copy makes
+        // `host-sim eval --weights` refuse the folder.
+        let weights = crate::load::repo_root().join("weights");
+        let specs: std::vec::Vec<_> = ["epssn-s.json", "epssn-p.json"]
+            .iter()
+            .map(|f| std::fs::read(weights.join(f)).unwrap())
+            .collect();
+        let mut folders = 0;
+        for entry in std::fs::read_dir(&weights).unwrap() {
+            let spec = entry.unwrap().path().join("spec.json");
+            if let Ok(bytes) = std::fs::read(&spec) {
+                assert!(
+                    specs.contains(&bytes),
+                    "{} is not a shipped spec",
+                    spec.display()
+                );
+                folders += 1;
+            }
+        }
+        assert!(folders >= 5, "{folders} weights folders");
+    }
+
+    #[test]
     fn a_spec_that_breaks_a_rule_is_refused_with_its_message() {
         let (good, beams, _) = shipped("epssn-s.json");
         let mut rules = broken_sizes();
