@@ -31,7 +31,6 @@ use crate::msgs::{
     decode_sonar_image, decode_tf_message, ProjectedSonarImage, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
 };
 use crate::ping::frame_of;
-use crate::record::Chunk;
 use crate::tf::{mul, Quat, TfTree};
 use crate::McapError;
 
@@ -100,21 +99,25 @@ struct Store {
 }
 
 impl Store {
-    /// The message at `at`.
+    /// The message at `at`: a chunk's from the last chunk when it is that one, else read from
+    /// the source.
     fn message(&self, at: &Location) -> Result<Vec<u8>, McapError> {
-        let record = self.source.read_at(at.record, at.record_len)?;
-        let mut chunk = |c: &Chunk<'_>| {
-            let mut last = self.last_chunk.lock().unwrap_or_else(|e| e.into_inner());
-            if let Some((offset, records)) = last.as_ref() {
-                if *offset == at.record {
-                    return Ok(Arc::clone(records));
-                }
+        if at.in_chunk.is_none() {
+            let record = self.source.read_at(at.record, at.record_len)?;
+            return Ok(decode::message_record(&record)?.data);
+        }
+        let mut last = self.last_chunk.lock().unwrap_or_else(|e| e.into_inner());
+        let records = match last.as_ref() {
+            Some((offset, records)) if *offset == at.record => Arc::clone(records),
+            _ => {
+                let record = self.source.read_at(at.record, at.record_len)?;
+                let records = Arc::new(decode::chunk_records(&record)?);
+                *last = Some((at.record, Arc::clone(&records)));
+                records
             }
-            let records = Arc::new(decode::decompress(c)?);
-            *last = Some((at.record, Arc::clone(&records)));
-            Ok(records)
         };
-        Ok(decode::fetch(&record, at, &mut chunk)?.data)
+        drop(last);
+        Ok(decode::message_in_chunk(&records, at)?.data)
     }
 }
 

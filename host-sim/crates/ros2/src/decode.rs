@@ -1,13 +1,13 @@
 //! An MCAP file read front to back as a stream: records in order, chunks decompressed
 //! (uncompressed, `lz4` frames with `lz4_flex`, `zstd` with `ruzstd`, both pure Rust) and their
 //! records read in place, one chunk in memory at a time. Each kept message is handed over with
-//! its [`Location`], from which [`fetch`] reads it again later: a bag far larger than memory is
+//! its [`Location`], from which it is read again later ([`message_record`],
+//! [`chunk_records`], [`message_in_chunk`]): a bag far larger than memory is
 //! scanned once and its pings read one by one. The summary section and indexes are not needed
 //! for one pass and are not read.
 
 use std::collections::BTreeMap;
 use std::io::{self, Read};
-use std::sync::Arc;
 
 use crate::header::{is_mcap, op, Cursor, MAGIC};
 use crate::record::{self, Channel, Chunk, Message, Record, Schema};
@@ -132,33 +132,33 @@ pub fn scan(
     }
 }
 
-/// Decompresses a chunk's records, or answers from a cache.
-pub type ChunkRecords<'a> = dyn FnMut(&Chunk<'_>) -> Result<Arc<Vec<u8>>, McapError> + 'a;
-
-/// Reads the message at `location` from the top-level record's body `record` (as read from
-/// the file at `location.record`); `chunk` decompresses a chunk's records (a cache may answer).
-pub fn fetch(
-    record: &[u8],
-    location: &Location,
-    chunk: &mut ChunkRecords<'_>,
-) -> Result<Message, McapError> {
-    let message = |body: &[u8]| match record::parse(op::MESSAGE, body)? {
+/// The message of a top-level message record's body.
+pub fn message_record(body: &[u8]) -> Result<Message, McapError> {
+    match record::parse(op::MESSAGE, body)? {
         Record::Message(m) => Ok(m),
         _ => Err(McapError::Changed("no message record there")),
-    };
-    let Some((at, len)) = location.in_chunk else {
-        return message(record);
-    };
-    let Record::Chunk(c) = record::parse(op::CHUNK, record)? else {
-        return Err(McapError::Changed("no chunk record there"));
-    };
-    let records = chunk(&c)?;
+    }
+}
+
+/// The records of a top-level chunk record's body, decompressed.
+pub fn chunk_records(body: &[u8]) -> Result<Vec<u8>, McapError> {
+    match record::parse(op::CHUNK, body)? {
+        Record::Chunk(c) => decompress(&c),
+        _ => Err(McapError::Changed("no chunk record there")),
+    }
+}
+
+/// The message at `location` in its chunk's decompressed `records`.
+pub fn message_in_chunk(records: &[u8], location: &Location) -> Result<Message, McapError> {
+    let (at, len) = location
+        .in_chunk
+        .ok_or(McapError::Changed("not in a chunk"))?;
     let body = usize::try_from(at)
         .ok()
         .zip(usize::try_from(len).ok())
         .and_then(|(at, len)| records.get(at..at.checked_add(len)?))
         .ok_or(McapError::Changed("the chunk is shorter"))?;
-    message(body)
+    message_record(body)
 }
 
 /// Fills `buf` as far as the stream goes; how many bytes it read.
