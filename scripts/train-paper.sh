@@ -32,7 +32,8 @@
 #   DEVICE       cpu, cuda or auto (epssn-train's default: auto); THREADS torch CPU threads
 #   LR           learning rate before its halving (default 1e-3); CE_WEIGHT, NO_RETURN_WEIGHT
 #                add epssn-train's extra loss terms (default 0: the paper's masked L1 only)
-#   CALIB_SAMPLES (256), SEARCH_PASSES (3), SEARCH_PIXELS (all): the quantiser's settings
+#   CALIB_SAMPLES (256), SEARCH_PASSES (3), SEARCH_PIXELS (all): the quantiser's settings;
+#                SEARCH=0 takes a plain calibration (percentile 99.99) instead of the search
 set -euo pipefail
 usage="usage: bash scripts/train-paper.sh tank|terrain|sphere|general [OUT]"
 protocol=${1:?$usage}
@@ -49,6 +50,8 @@ data=${DATA_ROOT:-out/paper-data/$protocol}
 train_n=${TRAIN_N:-${def[0]}} test_n=${TEST_N:-${def[1]}} val_n=${VAL_N:-${def[2]}}
 epochs=${EPOCHS:-50} lr=${LR:-1e-3}
 calib_n=${CALIB_SAMPLES:-256} passes=${SEARCH_PASSES:-3} pixels=${SEARCH_PIXELS:-all}
+search=(--search --search-passes "$passes" --search-pixels "$pixels")
+[ "${SEARCH:-1}" = 0 ] && search=()
 
 if [ -n "${HOST_SIM:-}" ]; then
   hs=$HOST_SIM
@@ -178,7 +181,7 @@ fi
 blob=$out/$(basename "$spec" .json).q8.bin
 if ! [ "$blob" -nt "$out/model.safetensors" ] || ! [ "$out/quantisation.json" -nt "$out/model.safetensors" ]; then
   "$hs" quantise --weights "$out" --calib "$fit_data" --calibration-samples "$calib_n" \
-    --percentile 99.99 --search --search-passes "$passes" --search-pixels "$pixels"
+    --percentile 99.99 "${search[@]}"
 fi
 
 evaluate() { # TEST_ROOT JSON: written through a temporary file, so a failed eval leaves none
