@@ -27,6 +27,7 @@ use epssn::attitude::Attitude;
 
 use crate::decode::{self, Contents, Location};
 use crate::frame::SonarFrame;
+use crate::header::slice_at;
 use crate::msgs::{
     decode_sonar_image, decode_tf_message, ProjectedSonarImage, PROJECTED_SONAR_IMAGE, TF_MESSAGE,
 };
@@ -81,10 +82,7 @@ impl Source {
                 }
                 Ok(out)
             }
-            Self::Memory(bytes) => usize::try_from(offset)
-                .ok()
-                .zip(usize::try_from(len).ok())
-                .and_then(|(at, len)| bytes.get(at..at.checked_add(len)?))
+            Self::Memory(bytes) => slice_at(bytes, offset, len)
                 .map(<[u8]>::to_vec)
                 .ok_or(McapError::Changed("the bytes are shorter")),
         }

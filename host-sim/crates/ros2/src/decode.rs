@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 use std::io::{self, Read};
 
-use crate::header::{is_mcap, op, Cursor, MAGIC};
+use crate::header::{is_mcap, op, slice_at, Cursor, MAGIC};
 use crate::record::{self, Channel, Chunk, Message, Record, Schema};
 use crate::McapError;
 
@@ -19,15 +19,13 @@ pub const MAX_CHUNK_BYTES: u64 = 1 << 28;
 /// Largest record this reader reads into memory (a chunk's compressed records, a message).
 pub const MAX_RECORD_BYTES: u64 = 1 << 28;
 
-/// Every schema and channel of a file, and the messages [`read`] kept (in file order).
+/// Every schema and channel of a file (its messages [`scan`] hands over as it reads them).
 #[derive(Clone, Debug, Default)]
 pub struct Contents {
     /// Schemas by id.
     pub schemas: BTreeMap<u16, Schema>,
     /// Channels by id.
     pub channels: BTreeMap<u16, Channel>,
-    /// Messages, in file order ([`read`] only; [`scan`] hands them over instead).
-    pub messages: Vec<Message>,
 }
 
 impl Contents {
@@ -50,18 +48,6 @@ pub struct Location {
     /// For a message inside a chunk: its record body's offset and length in the decompressed
     /// records.
     pub in_chunk: Option<(u64, u64)>,
-}
-
-/// Reads a whole MCAP file held in `bytes`. `keep` says, from a channel's schema name, whether
-/// its messages are kept (the others are dropped as they are read, sparing the memory).
-pub fn read(bytes: &[u8], keep: &dyn Fn(&str) -> bool) -> Result<Contents, McapError> {
-    let mut kept = Vec::new();
-    let mut contents = scan(bytes, keep, &mut |_, m, _| {
-        kept.push(m);
-        Ok(())
-    })?;
-    contents.messages = kept;
-    Ok(contents)
 }
 
 /// Reads an MCAP stream front to back, handing each message of a kept channel to `visit` with
@@ -153,11 +139,7 @@ pub fn message_in_chunk(records: &[u8], location: &Location) -> Result<Message, 
     let (at, len) = location
         .in_chunk
         .ok_or(McapError::Changed("not in a chunk"))?;
-    let body = usize::try_from(at)
-        .ok()
-        .zip(usize::try_from(len).ok())
-        .and_then(|(at, len)| records.get(at..at.checked_add(len)?))
-        .ok_or(McapError::Changed("the chunk is shorter"))?;
+    let body = slice_at(records, at, len).ok_or(McapError::Changed("the chunk is shorter"))?;
     message_record(body)
 }
 

@@ -28,6 +28,12 @@ pub fn is_mcap(bytes: &[u8]) -> bool {
     bytes.starts_with(&MAGIC)
 }
 
+/// The `len` bytes of `bytes` at `offset`, or `None` where they run past its end.
+pub fn slice_at(bytes: &[u8], offset: u64, len: u64) -> Option<&[u8]> {
+    let at = usize::try_from(offset).ok()?;
+    bytes.get(at..at.checked_add(usize::try_from(len).ok()?)?)
+}
+
 /// A cursor over a byte slice, little-endian as MCAP is.
 #[derive(Clone, Debug)]
 pub struct Cursor<'a> {

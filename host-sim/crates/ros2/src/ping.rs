@@ -159,38 +159,32 @@ pub fn range_axis(ranges: &[f32], sound_speed: f32) -> Result<RangeAxis> {
     }
     let first = f64::from(ranges[0]);
     let step = (f64::from(ranges[n - 1]) - first) / (n - 1) as f64;
+    let mut bins = SampleRanges {
+        start: first,
+        step,
+        samples: n,
+    };
     let even = ranges
         .iter()
         .enumerate()
         .all(|(i, &r)| (f64::from(r) - (first + step * i as f64)).abs() <= EVEN_TOLERANCE * step);
     if !even {
-        let bins = SampleRanges {
-            start: first,
-            step,
-            samples: n,
-        };
         let uneven = ranges.iter().map(|&r| f64::from(r)).collect();
         return Ok(RangeAxis {
             bins,
             uneven: Some(uneven),
         });
     }
-    let (mut start, mut step_m) = (first, step);
     let c = f64::from(sound_speed);
     if c.is_finite() && c > 0.0 {
         let half = c * 1e-6 / 2.0;
         let (delay, period) = (first / half, step / half);
         let whole = |x: f64| (x - x.round()).abs() <= MICROSECOND_TOLERANCE;
         if whole(delay) && whole(period) && period.round() >= 1.0 && delay.round() >= 0.0 {
-            start = delay.round() * half;
-            step_m = period.round() * half;
+            bins.start = delay.round() * half;
+            bins.step = period.round() * half;
         }
     }
-    let bins = SampleRanges {
-        start,
-        step: step_m,
-        samples: n,
-    };
     Ok(RangeAxis { bins, uneven: None })
 }
 
