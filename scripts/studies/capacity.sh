@@ -21,7 +21,8 @@
 #
 # Environment: DATA_P (out/paper-data/tank: train/, test/, val/ of the EPSSN-P grid, as
 # scripts/train-paper.sh tank writes them), DATA_S (OUT/data-s: written here with HOST_SIM_S, a
-# host-sim built for EPSSN-S, default target/release/host-sim), EPSSN_TRAIN, THREADS (2),
+# host-sim built for EPSSN-S, default target/release/host-sim), EPSSN_TRAIN (one path, as
+# scripts/epssn-train.sh takes it), THREADS (2),
 # VARIANTS ("p wb32 n32 c16 s"), EVAL_N (200), BUDGET_S, SEED.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -29,11 +30,13 @@ out=${1:-out/capacity}
 budget=${BUDGET_S:-1200} threads=${THREADS:-2} eval_n=${EVAL_N:-200} seed=${SEED:-1}
 data_p=${DATA_P:-out/paper-data/tank} data_s=${DATA_S:-$out/data-s}
 variants=${VARIANTS:-p wb32 n32 c16 s}
-if [ -n "${EPSSN_TRAIN:-}" ]; then read -ra train <<<"$EPSSN_TRAIN"
-elif command -v epssn-train >/dev/null; then train=(epssn-train)
-else train=(target/venv-train/bin/epssn-train); fi
-py=$(dirname "$(command -v "${train[0]}")")/python
-[ -x "$py" ] || py=python3
+# The trainer as scripts/epssn-train.sh finds it (EPSSN_TRAIN, else the venv target/venv-train,
+# made on first use); the variants' specs and scores need that trainer's Python (epssn_train).
+train=(bash scripts/epssn-train.sh)
+"${train[@]}" --help >/dev/null
+py=${EPSSN_TRAIN:+$(dirname "$EPSSN_TRAIN")/python}
+py=${py:-target/venv-train/bin/python}
+holds() { [ -d "$1" ] && [ "$(ls "$1" | wc -l)" -ge "$2" ]; } # DIR N: DIR holds N entries or more
 
 "$py" scripts/studies/capacity_specs.py weights/epssn-p.json "$out/specs"
 cp weights/epssn-s.json "$out/specs/s.json"
@@ -44,7 +47,7 @@ simulate_s() { # EPSSN-S's data: the same seeds as the EPSSN-P data, so the same
   local hs=${HOST_SIM_S:-target/release/host-sim}
   for split in "train 4000 1" "test $eval_n 2"; do
     set -- $split
-    [ -d "$data_s/$1" ] && [ "$(ls "$data_s/$1" | wc -l)" -ge "$2" ] && continue
+    holds "$data_s/$1" "$2" && continue
     "$hs" simulate --split "$1" --pairs "$2" --seed "$3" --out "$data_s" --no-preview "${site[@]}"
   done
   "$hs" simulate --split test --pairs 100 --seed 3 --out "$data_s-val" --no-preview "${site[@]}"
@@ -77,7 +80,7 @@ for v in $variants; do
       --no-progress "${resume[@]}"
   fi
   for split in train test; do
-    [ -d "$dir/pred-$split" ] && [ "$(ls "$dir/pred-$split" | wc -l)" -ge "$eval_n" ] && continue
+    holds "$dir/pred-$split" "$eval_n" && continue
     "${train[@]}" predict --weights "$fit" --data "$data/$split" --out "$dir/pred-$split" \
       --limit "$eval_n" --dtype float32
   done
