@@ -24,8 +24,8 @@
 # Environment:
 #   HOST_SIM     a host-sim built for EPSSN-P; default: build one with
 #                `EPSSN_SPEC=weights/epssn-p.json cargo build --release -p host-sim --target-dir target/epssn-p`
-#   EPSSN_TRAIN  the trainer command (default: epssn-train on PATH, else target/venv-train/bin/epssn-train;
-#                e.g. "python -m epssn_train")
+#   EPSSN_TRAIN  the trainer command (default: epssn-train on PATH, else the venv target/venv-train,
+#                made on first use; e.g. "python -m epssn_train"): scripts/epssn-train.sh
 #   DATA_ROOT    where the samples go (default out/paper-data/PROTOCOL)
 #   TRAIN_N TEST_N VAL_N EPOCHS   sizes (per scene for general) and epochs, e.g. for a tiny check
 #   INIT_FROM    start from this weights folder (e.g. weights/paper) instead of at random
@@ -60,13 +60,7 @@ else
   EPSSN_SPEC=$spec cargo build --release -q -p host-sim --target-dir target/epssn-p
   hs=target/epssn-p/release/host-sim
 fi
-if [ -n "${EPSSN_TRAIN:-}" ]; then
-  read -r -a trainer <<<"$EPSSN_TRAIN"
-elif command -v epssn-train >/dev/null; then
-  trainer=(epssn-train)
-else
-  trainer=(target/venv-train/bin/epssn-train)
-fi
+trainer=(bash scripts/epssn-train.sh)
 
 # The data must be on EPSSN-P's grid (a host-sim built for another spec draws its own): one probe
 # sample first, so that a wrong binary stops before it simulates, and marks, whole splits.
