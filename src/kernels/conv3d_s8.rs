@@ -360,7 +360,7 @@ mod tests {
     fn layer_too_large_for_the_column_buffer_takes_the_row_path() {
         let mut rng = Rng(21);
         let shape = ConvShape {
-            in_channels: 30,
+            in_channels: 40,
             out_channels: 3,
             kernel: [3, 3, 3],
             stride: [1, 2, 1],
@@ -369,10 +369,10 @@ mod tests {
             in_size: [3, 4, 5],
             out_size: [3, 2, 5],
         };
-        // Too many taps for the line engine (v = 30·9 > MAX_V) and for the columns.
-        const { assert!(30 * 27 > COL_LEN && 30 * 9 > super::super::line::MAX_V) };
+        // Too many taps for the line engine (v = 40·9 > MAX_V) and for the columns.
+        const { assert!(40 * 27 > COL_LEN && 40 * 9 > super::super::line::MAX_V) };
         let (w, b, r) = params(&mut rng, &shape);
-        let input = rng.i8s(30 * 60);
+        let input = rng.i8s(40 * 60);
         let p = ConvParams {
             weights: &w,
             bias: &b,

@@ -75,16 +75,22 @@ use crate::config::{LayerKind, LayerShape};
 use crate::requant::{Apply, Requant};
 
 /// Words (two i16 entries each) of the line buffer: the most any layer of the build's spec
-/// needs ([`layers_line_words`], the fit formulas of [`conv_fits`] and [`transposed_fits`]
+/// needs ([`layers_needs`], the fit formulas of [`conv_fits`] and [`transposed_fits`]
 /// over the compiled shapes), so every layer takes the engine; rounded up to whole 1024 words
 /// (4 KiB), the steps the scratch has been sized and budgeted in. EPSSN-S: d1's lines (72
 /// entries × 17 columns) are the longest at 612 words, its scratch stays at the 1024 it was
 /// measured with; EPSSN-P: d1's 72 × 33, 1188 words, 2048.
-pub const LINE_WORDS: usize = layers_line_words(&crate::config::LAYERS).div_ceil(1024) * 1024;
-/// Words (two i16 weights each) of the reordered weights of one call or phase.
-pub const WEIGHT_WORDS: usize = 3456;
-/// Most line entries per column (`v`, padded to a multiple of 4).
-pub const MAX_V: usize = 256;
+pub const LINE_WORDS: usize = SPEC_NEEDS.line_words.div_ceil(1024) * 1024;
+/// Words (two i16 weights each) of the reordered weights of one call or phase: the 3456
+/// EPSSN-S and EPSSN-P were measured with, or more when a layer of the build's spec needs more
+/// ([`layers_needs`]: a wider bottleneck), so that no layer falls to the row engine.
+pub const WEIGHT_WORDS: usize = at_least(3456, SPEC_NEEDS.weight_words);
+/// Most line entries per column (`v`, padded to a multiple of 4): 256, or the build's spec's
+/// most ([`layers_needs`]) when that is more.
+pub const MAX_V: usize = at_least(256, SPEC_NEEDS.v);
+
+/// What the build's spec's layers need of the buffers.
+const SPEC_NEEDS: BufferNeeds = layers_needs(&crate::config::LAYERS);
 /// Largest column stride of a transposed convolution the engine takes.
 pub const MAX_STRIDE: usize = 8;
 /// Most output channels with prepared [`FastRequant`]s.
@@ -213,26 +219,83 @@ pub(crate) const fn line_shape(shape: &ConvShape) -> ConvShape {
     }
 }
 
-/// The most line words ([`conv_line_words`], [`transposed_line_words`]) any layer of
-/// `layers` needs, each by the formula of the engine its kind runs on: 2D layers as
-/// [`super::conv2d_s8`] hands them to the engine, every transposed layer (the head too,
-/// though its kernel has its own buffers: an upper bound).
-pub(crate) const fn layers_line_words(layers: &[LayerShape]) -> usize {
-    let mut most = 0;
+/// What one layer needs of the line engine's buffers, by the fit formulas of the engine its
+/// kind runs on: 2D layers as [`super::conv2d_s8`] hands them to the engine, every transposed
+/// layer (the head too, though its kernel has its own buffers: an upper bound).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct BufferNeeds {
+    /// Line words ([`conv_line_words`], [`transposed_line_words`]).
+    pub line_words: usize,
+    /// Laid-out weight words ([`conv_weight_words`], [`transposed_weight_words`]).
+    pub weight_words: usize,
+    /// Line entries per column (`v`, [`conv_v`], [`transposed_v`]).
+    pub v: usize,
+}
+
+/// [`BufferNeeds`] of one layer.
+const fn layer_needs(layer: &LayerShape) -> BufferNeeds {
+    let shape = ConvShape::of(layer);
+    match layer.kind {
+        LayerKind::Conv2d => forward_needs(&line_shape(&shape)),
+        LayerKind::Conv3d => forward_needs(&shape),
+        LayerKind::ConvTranspose3d => {
+            let v = transposed_v(&shape);
+            BufferNeeds {
+                line_words: transposed_line_words(&shape),
+                weight_words: transposed_weight_words(&shape, v),
+                v,
+            }
+        }
+    }
+}
+
+/// [`BufferNeeds`] of a forward convolution.
+const fn forward_needs(shape: &ConvShape) -> BufferNeeds {
+    BufferNeeds {
+        line_words: conv_line_words(shape),
+        weight_words: conv_weight_words(shape),
+        v: conv_v(shape),
+    }
+}
+
+/// The most of each need over `layers`.
+pub(crate) const fn layers_needs(layers: &[LayerShape]) -> BufferNeeds {
+    let mut most = BufferNeeds {
+        line_words: 0,
+        weight_words: 0,
+        v: 0,
+    };
     let mut i = 0;
     while i < layers.len() {
-        let shape = ConvShape::of(&layers[i]);
-        let words = match layers[i].kind {
-            LayerKind::Conv2d => conv_line_words(&line_shape(&shape)),
-            LayerKind::Conv3d => conv_line_words(&shape),
-            LayerKind::ConvTranspose3d => transposed_line_words(&shape),
-        };
-        if words > most {
-            most = words;
-        }
+        let n = layer_needs(&layers[i]);
+        most.line_words = at_least(most.line_words, n.line_words);
+        most.weight_words = at_least(most.weight_words, n.weight_words);
+        most.v = at_least(most.v, n.v);
         i += 1;
     }
     most
+}
+
+/// The larger of `floor` and `need` (`max` is not a const fn).
+const fn at_least(floor: usize, need: usize) -> usize {
+    if need > floor {
+        need
+    } else {
+        floor
+    }
+}
+
+/// Weight words a forward convolution's engines need for its output channels to go in at most
+/// [`MAX_GROUPS`] groups on the i16 line ([`conv_group`]), and for the int8 line's one slot of
+/// folded biases and 16-byte weight blocks (`conv_s8`, Helium builds).
+const fn conv_weight_words(shape: &ConvShape) -> usize {
+    let (vp, kw, oc) = (conv_v(shape), shape.kernel[2], shape.out_channels);
+    let per_channel = kw * vp / 2;
+    let per_group = oc.div_ceil(MAX_GROUPS).div_ceil(2) * 2;
+    let i16_line = per_group * per_channel;
+    let pairs = oc.div_ceil(2);
+    let s8_slot = 2 * pairs + pairs * (kw * vp).div_ceil(16) * 32 / 4;
+    at_least(i16_line, s8_slot)
 }
 
 #[cfg(test)]
@@ -254,14 +317,38 @@ mod tests {
             assert!(fits, "{} does not take the line engine", l.name);
         }
         // The buffer is the longest lines rounded up to whole 1024 words, no more.
-        let need = layers_line_words(&config::LAYERS);
+        let need = layers_needs(&config::LAYERS).line_words;
         assert!(
             need <= LINE_WORDS && LINE_WORDS < need + 1024,
             "{need} {LINE_WORDS}"
         );
-        // In EPSSN-S and EPSSN-P d1 has the longest lines (S: 612 words, so 1024 as measured).
+        // In EPSSN-S and EPSSN-P d1 has the longest lines (S: 612 words, so 1024 as measured);
+        // a wider bottleneck (EPSSN-PW) has m0's.
         let d1 = conv_line_words(&ConvShape::of(&config::LAYER_D1));
-        assert_eq!(need, d1);
-        assert_eq!(LINE_WORDS, d1.div_ceil(1024) * 1024);
+        if config::LAYER_M0.in_channels <= 16 {
+            assert_eq!(need, d1);
+        }
+        assert_eq!(LINE_WORDS, need.div_ceil(1024) * 1024);
+    }
+
+    #[test]
+    fn weight_buffer_grows_only_for_layers_that_need_it() {
+        let needs = layers_needs(&config::LAYERS);
+        let (need, v) = (needs.weight_words, needs.v);
+        assert_eq!(WEIGHT_WORDS, need.max(3456));
+        assert_eq!(MAX_V, v.max(256));
+        if config::LAYER_M0.in_channels <= 16 {
+            // EPSSN-S and EPSSN-P keep the sizes their RAM and instructions were measured with:
+            // m0 (16 channels in and out) needs the most, 1744 words (its int8 slot), v 144.
+            assert_eq!((WEIGHT_WORDS, MAX_V), (3456, 256));
+            assert_eq!(need, conv_weight_words(&ConvShape::of(&config::LAYER_M0)));
+        } else {
+            // A 32-channel m0 (EPSSN-PW): v = 32 · 9 = 288, and 16 channel pairs of 54 int8
+            // blocks each (plus their biases) for its one int8 slot; the i16 line's two groups
+            // of 16 channels need 6912.
+            let m0 = ConvShape::of(&config::LAYER_M0);
+            assert_eq!((conv_v(&m0), conv_weight_words(&m0)), (288, 32 + 16 * 432));
+            assert_eq!((WEIGHT_WORDS, MAX_V), (6944, 288));
+        }
     }
 }

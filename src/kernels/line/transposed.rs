@@ -22,7 +22,7 @@ const fn transposed_cols(shape: &ConvShape) -> usize {
 
 /// Line entries per column of a transposed convolution (phase 0 has the most taps), padded
 /// to a multiple of 4.
-const fn transposed_v(shape: &ConvShape) -> usize {
+pub(super) const fn transposed_v(shape: &ConvShape) -> usize {
     // One `div_ceil` call site (it is `#[track_caller]`) for both axes: their divide-by-zero
     // panics share one location, which keeps `transposed_fits` compiled as tightly as before.
     const fn taps(shape: &ConvShape, a: usize) -> usize {
@@ -36,6 +36,13 @@ pub(crate) const fn transposed_line_words(shape: &ConvShape) -> usize {
     line_words(transposed_v(shape), transposed_cols(shape))
 }
 
+/// Weight words of a transposed convolution's `kw` x phases, held together, for its `vp`
+/// ([`transposed_v`], computed once by the caller: a second call site would change how
+/// [`transposed_fits`] compiles).
+pub(crate) const fn transposed_weight_words(shape: &ConvShape, vp: usize) -> usize {
+    shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2
+}
+
 /// Whether the transposed convolution fits the engine's buffers (phase 0 has the most taps;
 /// the x phases' weights, `kw` column taps in all, are held together).
 pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
@@ -43,7 +50,7 @@ pub(crate) fn transposed_fits(shape: &ConvShape) -> bool {
     vp <= MAX_V
         && shape.in_size[2] <= MAX_ROW
         && line_words(vp, transposed_cols(shape)) <= LINE_WORDS
-        && shape.out_channels.div_ceil(2) * 2 * shape.kernel[2] * vp / 2 <= WEIGHT_WORDS
+        && transposed_weight_words(shape, vp) <= WEIGHT_WORDS
         && shape.out_channels <= MAX_FAST_CHANNELS
         && shape.stride[2] <= MAX_STRIDE
         && shape.out_size[2] <= MAX_POSITIONS
