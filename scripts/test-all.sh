@@ -149,21 +149,6 @@ for model in weights/epssn-p-*/; do
 done
 echo "(EPSSN-P step $((SECONDS - p_start)) s)"
 
-step "EPSSN-PW, EPSSN-P with a wider bottleneck (weights/epssn-pw.json): zero-tolerance tests at its shapes"
-# Its m0 (32 channels) takes the line engine because the engine's buffers follow the spec
-# (src/kernels/line/mod.rs): the library's tests and the whole network against the integer
-# reference on the host, then every layer the harness holds, Helium against plain, on the
-# Cortex-M55 in QEMU. Its M55 figures (SIL, weights/budgets-m55-epssn-pw.json): docs/M55.md.
-# The host tests reuse target/epssn-p's debug dependencies (only the library and the
-# reference rebuild; the next EPSSN-P test build rebuilds them back).
-pw_start=$SECONDS
-EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn --lib --target-dir target/epssn-p
-EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn-reference --test bitexact_kernels network \
-    --target-dir target/epssn-p
-(cd qemu-check && EPSSN_SPEC=weights/epssn-pw.json timeout 600 cargo run --release \
-    --target thumbv8m.main-none-eabihf --features mve --target-dir ../target/qemu-check-pw)
-echo "(EPSSN-PW step $((SECONDS - pw_start)) s)"
-
 step "ROS 2 bags (docs/ROS2.md): ARIS 3000 demos as bags give the .aris depth maps bit for bit"
 # A venv under target/ with PyPI mcap and mcap-ros2-support (seconds): bags from the independent
 # writer read by run (zstd, LZ4, stored chunks), a 130-degree bag from 5 m refused, run --mcap's
@@ -175,6 +160,22 @@ step "PyTorch trainer (training/): float agreement with the f64 reference, data-
 # host-sim eval --save-depth on fresh samples, max |delta| <= 0.1 mm, EPSSN-S 2 and 3 views and
 # EPSSN-P (whose host-sim builds in target/epssn-p beside the step above); 10 torchrun steps.
 bash training/tests/run.sh
+
+step "EPSSN-PW, EPSSN-P with a wider bottleneck (weights/epssn-pw.json): zero-tolerance tests at its shapes"
+# Its m0 (32 channels) takes the line engine because the engine's buffers follow the spec
+# (src/kernels/line/mod.rs): the library's tests and the whole network against the integer
+# reference on the host, then every layer the harness holds, Helium against plain, on the
+# Cortex-M55 in QEMU. Its M55 figures (SIL, weights/budgets-m55-epssn-pw.json): docs/M55.md.
+# The host tests reuse target/epssn-p's debug dependencies (only the library and the
+# reference rebuild for this spec), so this step comes after every other use of that directory
+# (the EPSSN-P step, the trainer's tests); a later EPSSN-P build there rebuilds those two.
+pw_start=$SECONDS
+EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn --lib --target-dir target/epssn-p
+EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn-reference --test bitexact_kernels network \
+    --target-dir target/epssn-p
+(cd qemu-check && EPSSN_SPEC=weights/epssn-pw.json timeout 600 cargo run --release \
+    --target thumbv8m.main-none-eabihf --features mve --target-dir ../target/qemu-check-pw)
+echo "(EPSSN-PW step $((SECONDS - pw_start)) s)"
 
 step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"
 bash scripts/fuzz.sh 60
