@@ -343,7 +343,7 @@ mod tests {
 
     #[test]
     fn the_shipped_specs_keep_every_rule() {
-        for file in ["epssn-s.json", "epssn-p.json"] {
+        for file in crate::load::BUILD_SPECS {
             let (spec, beams, _) = shipped(file);
             let c = check(&spec, &beams).unwrap_or_else(|e| panic!("{file}: {e}"));
             let z = &c.sizes;
@@ -542,7 +542,7 @@ mod tests {
         // A folder's spec.json names the spec its blob is stamped for: a stale copy makes
         // `host-sim eval --weights` refuse the folder.
         let weights = crate::load::repo_root().join("weights");
-        let specs: std::vec::Vec<_> = ["epssn-s.json", "epssn-p.json"]
+        let specs: std::vec::Vec<_> = crate::load::BUILD_SPECS
             .iter()
             .map(|f| std::fs::read(weights.join(f)).unwrap())
             .collect();

@@ -181,6 +181,10 @@ pub fn build_spec_path(root: &Path) -> PathBuf {
 /// The default spec's file name in `weights/`: EPSSN-S, the Cortex-M7 configuration.
 pub const DEFAULT_SPEC_FILE: &str = "epssn-s.json";
 
+/// Every spec file in `weights/` a build can be generated from: EPSSN-S (Cortex-M7), EPSSN-P
+/// (the paper's size, Cortex-M55) and EPSSN-PW (EPSSN-P with a 32-channel bottleneck).
+pub const BUILD_SPECS: [&str; 3] = ["epssn-s.json", "epssn-p.json", "epssn-pw.json"];
+
 /// A file kept per configuration, in `dir`: `<name>.<ext>` for the default spec (EPSSN-S's
 /// `memory.x`, `budgets.json`), `<name>-<spec file stem>.<ext>` for any other
 /// (`memory-epssn-p.x`, `budgets-epssn-p.json`).
@@ -340,12 +344,8 @@ mod tests {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let mut files = Vec::new();
         spec_files(&root.join("weights"), &mut files);
-        for name in [
-            "epssn-s.json",
-            "epssn-p.json",
-            "general/spec.json",
-            "paper/spec.json",
-        ] {
+        let folders = ["general/spec.json", "paper/spec.json"];
+        for name in BUILD_SPECS.iter().chain(&folders) {
             let path = root.join("weights").join(name);
             assert!(
                 files.contains(&path),
