@@ -161,13 +161,13 @@ step "PyTorch trainer (training/): float agreement with the f64 reference, data-
 # EPSSN-P (whose host-sim builds in target/epssn-p beside the step above); 10 torchrun steps.
 bash training/tests/run.sh
 
-step "EPSSN-PW, EPSSN-P with a wider bottleneck (weights/epssn-pw.json): zero-tolerance tests at its shapes"
+step "EPSSN-PW, EPSSN-P with a wider bottleneck (weights/epssn-pw.json): zero-tolerance tests, SIL, its tank model's guard"
 # Its m0 (32 channels) takes the line engine because the engine's buffers follow the spec
 # (src/kernels/line/mod.rs): the library's tests and the whole network against the integer
 # reference on the host, then every layer the harness holds, Helium against plain, on the
 # Cortex-M55 in QEMU. Its M55 figures (SIL, weights/budgets-m55-epssn-pw.json): docs/M55.md.
-# The host tests reuse target/epssn-p's debug dependencies (only the library and the
-# reference rebuild for this spec), so this step comes after every other use of that directory
+# The host tests reuse target/epssn-p's debug dependencies (only the crates generated from the
+# spec rebuild for this one), so this step comes after every other use of that directory
 # (the EPSSN-P step, the trainer's tests); a later EPSSN-P build there rebuilds those two.
 pw_start=$SECONDS
 EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn --lib --target-dir target/epssn-p
@@ -175,6 +175,12 @@ EPSSN_SPEC=weights/epssn-pw.json cargo test -p epssn-reference --test bitexact_k
     --target-dir target/epssn-p
 (cd qemu-check && EPSSN_SPEC=weights/epssn-pw.json timeout 600 cargo run --release \
     --target thumbv8m.main-none-eabihf --features mve --target-dir ../target/qemu-check-pw)
+# Its tank model (weights/epssn-pw-tank, the blob weights/FIRMWARE_WEIGHTS names for this spec):
+# bit for bit on the M55 within weights/budgets-m55-epssn-pw.json, and its accuracy guard.
+EPSSN_SPEC=weights/epssn-pw.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
+    --target m55 --frames 3 --faults 0 --json
+EPSSN_SPEC=weights/epssn-pw.json cargo test -p host-sim --test accuracy_guard \
+    --target-dir target/epssn-p -- --ignored --exact epssn_pw_tank_model_keeps_its_accuracy
 echo "(EPSSN-PW step $((SECONDS - pw_start)) s)"
 
 step "fuzzing: every parser, 60 s per target (scripts/fuzz.sh; nightly + cargo-fuzz)"

@@ -363,7 +363,7 @@ mod tests {
     #[test]
     fn the_shipped_pointer_names_a_blob_for_every_bundled_spec() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-        for spec in ["epssn-s.json", "epssn-p.json"] {
+        for spec in BUILD_SPECS {
             let blob = firmware_blob(&root, spec).unwrap();
             assert!(blob.is_file(), "{}", blob.display());
         }
