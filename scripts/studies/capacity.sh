@@ -31,13 +31,11 @@ budget=${BUDGET_S:-1200} threads=${THREADS:-2} eval_n=${EVAL_N:-200} seed=${SEED
 data_p=${DATA_P:-out/paper-data/tank} data_s=${DATA_S:-$out/data-s}
 variants=${VARIANTS:-p wb32 n32 c16 s}
 # The trainer as scripts/epssn-train.sh finds it (EPSSN_TRAIN, else epssn-train on PATH, else
-# the venv target/venv-train, made on first use); the variants' specs and scores need that trainer's Python (epssn_train).
+# the venv target/venv-train, made on first use); the variants' specs and scores need that
+# trainer's Python (epssn_train), which the resolver names.
 train=(bash scripts/epssn-train.sh)
 "${train[@]}" --help >/dev/null
-# Its Python: beside the trainer's executable, in the same order of lookup.
-read -r -a first <<<"${EPSSN_TRAIN:-}"
-exe=${first[0]:-$(command -v epssn-train || echo target/venv-train/bin/epssn-train)}
-py=$(dirname "$exe")/python
+py=$("${train[@]}" --python)
 holds() { [ -d "$1" ] && [ "$(ls "$1" | wc -l)" -ge "$2" ]; } # DIR N: DIR holds N entries or more
 
 "$py" scripts/studies/capacity_specs.py weights/epssn-p.json "$out/specs"
