@@ -25,6 +25,16 @@ fn quantised_blob(seed: u64) -> Vec<u8> {
         .blob
 }
 
+/// The window's ends r_min and r_max, Q16.16: soft-argmax indices K and R − 1 + K (K the end
+/// bins' offset beyond the window, QUANTISATION.md), between which every depth is clamped.
+fn window_ends() -> [u32; 2] {
+    let (k, step) = (config::END_BIN_OFFSET, config::DEPTH_STEP_Q16);
+    [
+        config::R_MIN_Q16 + k * step,
+        config::R_MIN_Q16 + (config::DEPTH_RANGE_BINS as u32 - 1 + k) * step,
+    ]
+}
+
 /// Runs the library's whole-tensor path and its streamed path and the reference on `views`;
 /// compares every tensor the whole path shows, every tensor the streamed path shows, and both
 /// depth maps.
@@ -102,9 +112,8 @@ fn assert_bit_exact(blob: &[u8], views: &[&[u8]], what: &str) -> usize {
     let streamed_bits: Vec<u32> = streamed.iter().map(|d| d.to_bits()).collect();
     assert_eq!(streamed_bits, bits, "{what}: streamed depth");
     // The depth is not degenerate: inside the window, not a single value everywhere.
-    let top =
-        config::R_MIN_Q16 + (config::DEPTH_RANGE_BINS as u32 - 1) * config::DEPTH_STEP_Q16 + 1;
-    assert!(bits.iter().all(|&d| d >= config::R_MIN_Q16 && d <= top));
+    let [lo, hi] = window_ends();
+    assert!(bits.iter().all(|&d| d >= lo && d <= hi));
     let mut distinct = bits.clone();
     distinct.sort_unstable();
     distinct.dedup();
@@ -331,4 +340,56 @@ fn views_tensor_trained_default_and_invalid() {
     assert_eq!(Model::from_blob(&q.blob).unwrap().views(), 3);
     assert!(quantise::quantise(&weights, &ranges, 4).is_err());
     assert!(quantise::quantise(&weights, &ranges, 1).is_err());
+}
+
+/// The blob may carry its model's own no-return threshold: without the tensor the model runs
+/// the spec's, with it the blob's (and the reference follows it bit for bit), and thresholds
+/// outside `0..=2^16` are refused.
+#[test]
+fn no_return_tensor_overrides_the_spec_and_bad_values_are_refused() {
+    let blob = quantised_blob(29);
+    let model = Model::from_blob(&blob).unwrap();
+    assert_eq!(model.no_return16(), config::NO_RETURN_MASS_Q16);
+    let name = epssn::model::NO_RETURN_TENSOR;
+    let mut rng = Rng(30);
+    let a = synthetic_image(&mut rng, 0.25);
+    let b = synthetic_image(&mut rng, 0.35);
+    let depth = |blob: &[u8]| -> Vec<u32> {
+        assert_bit_exact(blob, &[&a, &b], "no-return threshold");
+        reference_model::run(blob, &[&a, &b]).unwrap().depth
+    };
+    // τ16 = 1 decides nearly every ray (its end bins hold any mass at all), τ16 = 0 none.
+    let none = quantise::with_no_return(&blob, 0.0).unwrap();
+    let all = quantise::with_no_return(&blob, 1.0 / 65536.0).unwrap();
+    assert_eq!(Model::from_blob(&none).unwrap().no_return16(), 0);
+    assert_eq!(Model::from_blob(&all).unwrap().no_return16(), 1);
+    let (undecided, decided) = (depth(&none), depth(&all));
+    let ends = window_ends();
+    let changed: Vec<u32> = decided
+        .iter()
+        .zip(&undecided)
+        .filter(|(d, u)| d != u)
+        .map(|(d, _)| *d)
+        .collect();
+    assert!(!changed.is_empty(), "τ16 = 1 decided no ray");
+    assert!(changed.iter().all(|d| ends.contains(d)), "{changed:?}");
+    // Setting it again replaces it; the other tensors keep their bytes.
+    let half = quantise::with_no_return(&all, 0.5).unwrap();
+    assert_eq!(half, quantise::with_no_return(&blob, 0.5).unwrap());
+    assert_eq!(Model::from_blob(&half).unwrap().no_return16(), 1 << 15);
+    for tau in [-0.1, 1.5, f64::NAN] {
+        assert!(quantise::with_no_return(&blob, tau).is_err(), "τ {tau}");
+    }
+    for bad in [i32::MIN, -1, (1 << 16) + 1, i32::MAX] {
+        assert_eq!(
+            Model::from_blob(&epssn_tests::with_i32_tensor(&blob, name, Some(bad))).unwrap_err(),
+            epssn::model::Error::NoReturn { tau16: bad },
+            "τ16 {bad}"
+        );
+        assert!(reference_model::run(
+            &epssn_tests::with_i32_tensor(&blob, name, Some(bad)),
+            &[&a, &b]
+        )
+        .is_err());
+    }
 }

@@ -435,7 +435,8 @@ fn depth_maps(
             .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
     Ok(DepthMaps {
         int8: depth_q.iter().map(|d| d.to_num::<f32>()).collect(),
-        float: floatref::run(&bundle.float, views)?.depth,
+        float: floatref::run(&bundle.float, views)?
+            .decided(f64::from(model.no_return16()) / 65536.0),
         bit_exact,
     })
 }

@@ -38,8 +38,8 @@ use crate::kernels::{
     cost_volume_s8::CostRequant, cost_volume_s8::CostShape, cost_volume_s8::CostVolume,
     cost_volume_s8::SourceView, head_s8::head_steps, head_s8::HeadPlan, head_s8::HeadWeights,
     skip_value_bound, soft_argmax_s8::head_soft_argmax_s8, soft_argmax_s8::soft_argmax_s8,
-    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape, CheckedParams, ConvParams,
-    ConvShape, KernelError, Skip,
+    soft_argmax_s8::SoftArgmaxParams, soft_argmax_s8::SoftArgmaxShape,
+    soft_argmax_s8::MAX_NO_RETURN16, CheckedParams, ConvParams, ConvShape, KernelError, Skip,
 };
 use crate::requant::Requant;
 
@@ -82,6 +82,11 @@ pub enum Error {
     Views {
         /// The value the blob holds.
         views: i32,
+    },
+    /// The blob's no-return threshold (its [`NO_RETURN_TENSOR`]) is outside `0..=2^16`.
+    NoReturn {
+        /// The value the blob holds.
+        tau16: i32,
     },
     /// An input image or feature map has the wrong length.
     InputLength {
@@ -129,6 +134,8 @@ pub struct Model<'a> {
     cost: [CostRequant; 2],
     /// Views the model was trained and calibrated for.
     views: usize,
+    /// The no-return decision's threshold `round(τ · 2^16)` (0 decides nothing).
+    no_return16: u32,
     exp: [u16; 256],
 }
 
@@ -144,6 +151,13 @@ pub const COST_MEAN_TENSOR: &str = "cost.mean";
 /// model fed 2 views is far worse than a 2-view one, docs/ACCURACY.md), so the server pairs
 /// frames into sets of this size.
 pub const VIEWS_TENSOR: &str = "views";
+
+/// The blob tensor holding the model's no-return threshold `round(τ · 2^16)`, `0..=2^16`
+/// (optional: the spec's `no_return_mass` when absent). A calibration of the trained model,
+/// chosen on validation data: how much of a ray's mass its end bin must hold before the ray
+/// reads "nothing there" depends on how the model spreads its mass, so one spec's models may
+/// need different thresholds (0: no decision).
+pub const NO_RETURN_TENSOR: &str = "no_return";
 
 /// The offset layer `index` adds to every input value (QUANTISATION.md): 128 for the network
 /// input ([`INPUT_OFFSET`]), `−cost_zero_point` for d1, which reads the cost volume, else 0.
@@ -193,7 +207,8 @@ fn valid_multiplier(r: Requant) -> bool {
 /// `<layer>.s` int32 per-channel multipliers and shifts, `<layer>.k` int32 `[multiplier,
 /// shift]` of a skip, `cost.rq` int32 `[M2, s2, M3, s3]`, `cost.zp` int32 `[zero point]`
 /// (0 or −128; a blob without it has zero point 0, as every blob before it), `views` int32
-/// `[views trained for]` (2..=MAX_VIEWS; a blob without it has the spec's), `exp` u16 `[256]`;
+/// `[views trained for]` (2..=MAX_VIEWS; a blob without it has the spec's), `no_return` int32
+/// `[round(τ · 2^16)]` (0..=2^16; a blob without it has the spec's), `exp` u16 `[256]`;
 /// with mean channels also `cost.mean` int32 `[M'2, s'2, M'3, s'3]`.
 pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
     use crate::blob::Dtype;
@@ -212,6 +227,7 @@ pub fn blob_tensor_names(mut f: impl FnMut(&str, crate::blob::Dtype, usize)) {
         f(COST_MEAN_TENSOR, Dtype::I32, 4);
     }
     f(VIEWS_TENSOR, Dtype::I32, 1);
+    f(NO_RETURN_TENSOR, Dtype::I32, 1);
     f("exp", Dtype::U16, 256);
 }
 
@@ -247,6 +263,11 @@ impl<'a> Model<'a> {
         if !(2..=config::MAX_VIEWS as i32).contains(&views) {
             return Err(Error::Views { views });
         }
+        let tau16 = read_optional_i32(&blob, NO_RETURN_TENSOR, config::NO_RETURN_MASS_Q16 as i32)?;
+        let no_return16 = match u32::try_from(tau16) {
+            Ok(t) if t <= MAX_NO_RETURN16 => t,
+            _ => return Err(Error::NoReturn { tau16 }),
+        };
         // X ≤ 3·3·128² < 2^18 and |Σv| ≤ 3·128 for any int8 features.
         let valid =
             |r: Requant, bound: i64| valid_multiplier(r) && r.shift_in_range() && r.fits(bound);
@@ -320,6 +341,7 @@ impl<'a> Model<'a> {
             layers,
             cost,
             views: views as usize,
+            no_return16,
             exp,
         })
     }
@@ -351,13 +373,19 @@ impl<'a> Model<'a> {
         )
     }
 
+    /// The no-return decision's threshold `round(τ · 2^16)` the model runs (the blob's
+    /// [`NO_RETURN_TENSOR`], else the spec's `no_return_mass`; 0: no decision).
+    pub fn no_return16(&self) -> u32 {
+        self.no_return16
+    }
+
     fn soft(&self) -> SoftArgmaxParams<'_> {
         SoftArgmaxParams {
             exp: &self.exp,
             r_min16: U16F16::from_bits(config::R_MIN_Q16),
             step16: U16F16::from_bits(config::DEPTH_STEP_Q16),
             end_offset: config::END_BIN_OFFSET as u16,
-            no_return16: config::NO_RETURN_MASS_Q16,
+            no_return16: self.no_return16,
         }
     }
 }

@@ -51,6 +51,12 @@ pub struct QuantiseArgs {
     /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
     #[arg(long, conflicts_with_all = ["weights", "random_init"])]
     pub restamp: Option<PathBuf>,
+    /// Write this no-return threshold τ (0 to 1; 0: no decision) into the blob in place of
+    /// the spec's `no_return_mass`: a calibration of the trained model, chosen on validation
+    /// data (the `no_return_sweep` example). With `--restamp`, into that folder's blob, every
+    /// other tensor byte kept.
+    #[arg(long, conflicts_with = "random_init")]
+    pub no_return_mass: Option<f64>,
 }
 
 impl From<QuantiseArgs> for QuantiseOptions {
@@ -67,6 +73,7 @@ impl From<QuantiseArgs> for QuantiseOptions {
             ranges_from: a.ranges_from,
             out: a.out,
             restamp: a.restamp,
+            no_return_mass: a.no_return_mass,
         }
     }
 }

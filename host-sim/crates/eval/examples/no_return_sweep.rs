@@ -9,6 +9,8 @@
 //!
 //! τ = 0 is the soft-argmax without a decision. The rule is the device's (QUANTISATION.md
 //! "No-return decision"): last-bin mass ≥ τ reads r_max, else first-bin mass ≥ τ reads r_min.
+//! Run on a validation split, it chooses the threshold a model's blob carries (`host-sim
+//! quantise --no-return-mass τ`, or `--restamp DIR --no-return-mass τ` for a blob made).
 
 use std::path::PathBuf;
 

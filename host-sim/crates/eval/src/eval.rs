@@ -167,6 +167,7 @@ fn score(
 ) -> Result<Scores> {
     let bundle = weights::load(weights_dir)?;
     let folded = floatref::fold_all(&bundle.float)?;
+    let tau = bundle.no_return_mass()?;
     let model = if int8 {
         Some(
             epssn::model::Model::from_blob(&bundle.blob)
@@ -178,7 +179,7 @@ fn score(
     let mut ws = Box::new(epssn::model::Workspace::new());
     let mut s = Scores::default();
     for sample in set {
-        let float = float_depth(&folded, sample)?;
+        let float = float_depth(&folded, sample, tau)?;
         if let Some(out) = save_depth_to {
             save_depth(out, sample, &float)?;
         }
@@ -207,9 +208,9 @@ fn score(
     Ok(s)
 }
 
-/// The float depth map of one sample; one view is fed as its own source, as training's
-/// single-view ablation does.
-fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample) -> Result<Vec<f32>> {
+/// The float depth map of one sample, decided at the blob's no-return threshold `tau`; one
+/// view is fed as its own source, as training's single-view ablation does.
+fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample, tau: f64) -> Result<Vec<f32>> {
     let views: Vec<&[u8]> = if sample.views.len() == 1 {
         vec![&sample.views[0], &sample.views[0]]
     } else {
@@ -217,7 +218,7 @@ fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample) -> Result<Vec<
     };
     Ok(floatref::run_folded(folded, &views, &mut |_, _| {})
         .with_context(|| format!("float network on {}", sample.dir.display()))?
-        .depth)
+        .decided(tau))
 }
 
 /// Writes a sample's float depth map to `<out>/<sample folder name>/depth_float.npy`.

@@ -81,6 +81,11 @@ pub struct QuantiseOptions {
     /// `quantisation.json`'s `spec_hash` and `blob_crc32` follow. For spec edits that change
     /// no size, table or weight (e.g. a pairing tolerance); the build refuses others anyway.
     pub restamp: Option<PathBuf>,
+    /// Write this no-return threshold τ (in `[0, 1]`; 0: no decision) into the blob
+    /// ([`epssn::model::NO_RETURN_TENSOR`]) in place of the spec's `no_return_mass`: a
+    /// calibration of the trained model, chosen on validation data (`no_return_sweep`). With
+    /// `restamp`, into that folder's blob, every other tensor byte kept.
+    pub no_return_mass: Option<f64>,
 }
 
 /// The activation ranges (scale × top code) `quantisation.json` of `dir` records, for exactly
@@ -140,6 +145,75 @@ pub fn restamp(dir: &Path, out: &mut impl std::io::Write) -> Result<()> {
         path.display(),
         old,
         config::SPEC_HASH
+    )?;
+    Ok(())
+}
+
+/// `blob` with its no-return threshold set to `tau` ([`epssn::model::NO_RETURN_TENSOR`],
+/// `round(τ · 2^16)`), every other tensor's bytes and order kept; checked by the library.
+pub fn with_no_return(blob: &[u8], tau: f64) -> Result<Vec<u8>> {
+    ensure!(
+        (0.0..=1.0).contains(&tau),
+        "no-return threshold {tau} is outside [0, 1]"
+    );
+    let tau16 = (tau * 65536.0).round() as i32;
+    let hash = u32::from_le_bytes(
+        blob.get(12..16)
+            .context("too short for a blob")?
+            .try_into()?,
+    );
+    let parsed =
+        epssn::blob::Blob::parse(blob, hash).map_err(|e| anyhow!("not a valid blob: {e:?}"))?;
+    let value = tau16.to_le_bytes();
+    let name = epssn::model::NO_RETURN_TENSOR;
+    let mut tensors = Vec::new();
+    for e in (0..parsed.tensor_count()).filter_map(|i| parsed.entry(i)) {
+        let n = std::str::from_utf8(e.name).context("tensor name")?;
+        if n != name {
+            tensors.push((n, e.dtype, e.bytes));
+        }
+    }
+    let at = tensors
+        .iter()
+        .position(|t| t.0 == epssn::model::VIEWS_TENSOR)
+        .map_or(tensors.len(), |i| i + 1);
+    tensors.insert(at, (name, epssn::blob::Dtype::I32, &value[..]));
+    let mut out = vec![0u8; blob.len() + epssn::blob::ENTRY_LEN + 8];
+    let n = epssn::blob::write_blob(hash, &tensors, &mut out)
+        .map_err(|e| anyhow!("writing the blob: {e:?}"))?;
+    out.truncate(n);
+    if hash == config::SPEC_HASH {
+        let model = epssn::model::Model::from_blob(&out)
+            .map_err(|e| anyhow!("the blob with a no-return threshold is refused: {e:?}"))?;
+        ensure!(
+            model.no_return16() == tau16 as u32,
+            "the threshold did not take"
+        );
+    }
+    Ok(out)
+}
+
+/// `quantise --no-return-mass τ`: `dir`'s blob with its no-return threshold set to τ, and
+/// `quantisation.json` following (`no_return_mass`, `blob_bytes`, `blob_crc32`).
+pub fn set_no_return(dir: &Path, tau: f64, out: &mut impl std::io::Write) -> Result<()> {
+    let path = dir.join(BLOB_FILE);
+    let blob = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+    let blob = with_no_return(&blob, tau).with_context(|| path.display().to_string())?;
+    std::fs::write(&path, &blob).with_context(|| format!("writing {}", path.display()))?;
+    let crc = epssn::crc32::crc32(&blob[..blob.len() - 4]);
+    let qpath = dir.join("quantisation.json");
+    if let Ok(text) = std::fs::read_to_string(&qpath) {
+        let mut j: serde_json::Value = serde_json::from_str(&text)?;
+        j["no_return_mass"] = tau.into();
+        j["blob_bytes"] = blob.len().into();
+        j["blob_crc32"] = format!("{crc:#010x}").into();
+        std::fs::write(&qpath, serde_json::to_string_pretty(&j)? + "\n")?;
+    }
+    writeln!(
+        out,
+        "{}: no-return threshold {tau} (tau16 {}), blob CRC {crc:#010x}",
+        path.display(),
+        (tau * 65536.0).round()
     )?;
     Ok(())
 }
@@ -252,7 +326,11 @@ fn random_calibration(args: &QuantiseOptions, seed: u64, n: usize) -> Result<Cal
 /// Runs `host-sim quantise`.
 pub fn run(args: &QuantiseOptions, out: &mut impl std::io::Write) -> Result<()> {
     if let Some(dir) = &args.restamp {
-        return restamp(dir, out);
+        restamp(dir, out)?;
+        if let Some(tau) = args.no_return_mass {
+            set_no_return(dir, tau, out)?;
+        }
+        return Ok(());
     }
     let n = args.calibration_samples.max(1);
     let Calibration {
@@ -306,6 +384,9 @@ pub fn run(args: &QuantiseOptions, out: &mut impl std::io::Write) -> Result<()> 
         q.spec_hash,
         dir.display()
     )?;
+    if let Some(tau) = args.no_return_mass {
+        set_no_return(&dir, tau, out)?;
+    }
     Ok(())
 }
 

@@ -29,6 +29,18 @@ pub struct FloatTrace {
     pub near_mass: Vec<f32>,
 }
 
+impl FloatTrace {
+    /// The depth map under the no-return decision at threshold `tau` instead of the spec's
+    /// (a blob's own threshold, [`epssn::model::NO_RETURN_TENSOR`]; 0 decides nothing).
+    pub fn decided(&self, tau: f64) -> Vec<f32> {
+        self.soft_depth
+            .iter()
+            .zip(self.near_mass.iter().zip(&self.far_mass))
+            .map(|(&soft, (&near, &far))| decide(soft, near, far, tau))
+            .collect()
+    }
+}
+
 /// The no-return decision on one ray at threshold `tau` (the spec's `no_return_mass`; 0
 /// decides nothing): `r_max` when the last bin holds at least `tau` of the mass, else `r_min`
 /// when the first does, else the soft-argmax `soft`.

@@ -126,9 +126,23 @@ pub fn run(blob_bytes: &[u8], views: &[&[u8]]) -> Result<Trace> {
         config::R_MIN_Q16,
         config::DEPTH_STEP_Q16,
         config::END_BIN_OFFSET,
-        config::NO_RETURN_MASS_Q16,
+        no_return16(&blob)?,
     );
     Ok(trace)
+}
+
+/// The no-return threshold the blob carries (`no_return`, `round(τ · 2^16)` in `0..=2^16`),
+/// else the spec's.
+fn no_return16(blob: &Blob<'_>) -> Result<u32> {
+    let mut v = [config::NO_RETURN_MASS_Q16 as i32];
+    match blob.read_i32(epssn::model::NO_RETURN_TENSOR, &mut v) {
+        Ok(()) | Err(epssn::blob::BlobError::MissingTensor) => {}
+        Err(e) => return Err(anyhow!("no_return: {e:?}")),
+    }
+    u32::try_from(v[0])
+        .ok()
+        .filter(|&t| t <= 1 << 16)
+        .ok_or_else(|| anyhow!("no_return {} is outside 0..=65536", v[0]))
 }
 
 /// Tensors by layer name.
