@@ -26,14 +26,19 @@
 #                `EPSSN_SPEC=weights/epssn-p.json cargo build --release -p host-sim --target-dir target/epssn-p`
 #   EPSSN_TRAIN  the trainer command (default: epssn-train on PATH, else the venv target/venv-train,
 #                made on first use; e.g. "python -m epssn_train"): scripts/epssn-train.sh
-#   DATA_ROOT    where the samples go (default out/paper-data/PROTOCOL)
+#   DATA_ROOT    where the samples go (default out/paper-data/PROTOCOL; with TERRAINS=K,
+#                out/paper-data/terrain-K-terrains)
 #   TRAIN_N TEST_N VAL_N EPOCHS   sizes (per scene for general) and epochs, e.g. for a tiny check
 #   INIT_FROM    start from this weights folder (e.g. weights/paper) instead of at random
 #   DEVICE       cpu, cuda or auto (epssn-train's default: auto); THREADS torch CPU threads
 #   LR           learning rate before its halving (default 1e-3); CE_WEIGHT, NO_RETURN_WEIGHT
 #                add epssn-train's extra loss terms (default 0: the paper's masked L1 only)
+#   TERRAINS     terrain only: train on this many terrains of their own (seeds 101..100+K,
+#                TRAIN_N/K pairs each) instead of terrain 1; test and validation stay terrains 2, 3
 #   CALIB_SAMPLES (256), SEARCH_PASSES (3), SEARCH_PIXELS (all): the quantiser's settings;
-#                SEARCH=0 takes a plain calibration (percentile 99.99) instead of the search
+#                SEARCH=0 takes a plain calibration (percentile 99.99) instead of the search;
+#                NO_RETURN_MASS writes the model's no-return threshold into the blob (chosen on
+#                the validation split with the no_return_sweep example; default: the spec's)
 set -euo pipefail
 usage="usage: bash scripts/train-paper.sh tank|terrain|sphere|general [OUT]"
 protocol=${1:?$usage}
@@ -46,9 +51,15 @@ esac
 cd "$(dirname "$0")/.."
 spec=weights/epssn-p.json
 if [ "$protocol" = general ]; then out=${2:-weights/paper}; else out=${2:-weights/epssn-p-$protocol}; fi
-data=${DATA_ROOT:-out/paper-data/$protocol}
 train_n=${TRAIN_N:-${def[0]}} test_n=${TEST_N:-${def[1]}} val_n=${VAL_N:-${def[2]}}
 epochs=${EPOCHS:-50} lr=${LR:-1e-3}
+terrains=${TERRAINS:-1}
+# Several terrains' training split is links into their parts: not the one-terrain root's.
+if [ "$protocol" = terrain ] && [ "$terrains" -gt 1 ]; then
+  data=${DATA_ROOT:-out/paper-data/terrain-$terrains-terrains}
+else
+  data=${DATA_ROOT:-out/paper-data/$protocol}
+fi
 calib_n=${CALIB_SAMPLES:-256} passes=${SEARCH_PASSES:-3} pixels=${SEARCH_PIXELS:-all}
 search=(--search --search-passes "$passes" --search-pixels "$pixels")
 [ "${SEARCH:-1}" = 0 ] && search=()
@@ -109,7 +120,29 @@ case $protocol in
     # Terrain S is sample 0 of seed S's training split, exported whole; the test and validation
     # terrains are never trained on.
     for s in 1 2 3; do export_terrain "$s" "$data-meshes/terrain-seed$s.stl"; done
-    simulate "$data" train "$train_n" 1 --site "$data-meshes/terrain-seed1.stl"
+    if [ "$terrains" -gt 1 ]; then
+      # TERRAINS=K: train on K terrains of their own (seeds 101..100+K, never 1-3), TRAIN_N/K
+      # pairs on each (seed S), merged into one training split of links.
+      per=$((train_n / terrains))
+      [ "$per" -ge 1 ] || { echo "TRAIN_N=$train_n is fewer than TERRAINS=$terrains" >&2; exit 2; }
+      mkdir -p "$data/train"
+      for ((k = 1; k <= terrains; k++)); do
+        s=$((100 + k)) part=$data-parts/s$((100 + k))
+        if [ "$(done_pairs "$part" train)" -lt "$per" ]; then
+          "$hs" simulate --scene terrain --seed "$s" --export-mesh "$part.stl" >/dev/null
+          simulate "$part" train "$per" "$s" --site "$part.stl"
+          rm -f "$part.stl"
+        fi
+        for ((i = 0; i < per; i++)); do
+          ln -sfn "$(realpath "$part/train/$(printf %06d "$i")")" \
+            "$data/train/$(printf %06d $(((k - 1) * per + i)))"
+        done
+      done
+      train_n=$((per * terrains))
+      echo "$train_n" >"$(marker "$data" train)"
+    else
+      simulate "$data" train "$train_n" 1 --site "$data-meshes/terrain-seed1.stl"
+    fi
     simulate "$data" test "$test_n" 2 --site "$data-meshes/terrain-seed2.stl"
     simulate "$data-val" test "$val_n" 3 --site "$data-meshes/terrain-seed3.stl"
     link_val "$data-val/test" "$data"
@@ -175,7 +208,7 @@ fi
 blob=$out/$(basename "$spec" .json).q8.bin
 if ! [ "$blob" -nt "$out/model.safetensors" ] || ! [ "$out/quantisation.json" -nt "$out/model.safetensors" ]; then
   "$hs" quantise --weights "$out" --calib "$fit_data" --calibration-samples "$calib_n" \
-    --percentile 99.99 "${search[@]}"
+    --percentile 99.99 "${search[@]}" ${NO_RETURN_MASS:+--no-return-mass "$NO_RETURN_MASS"}
 fi
 
 evaluate() { # TEST_ROOT JSON: written through a temporary file, so a failed eval leaves none
