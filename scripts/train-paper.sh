@@ -127,7 +127,7 @@ case $protocol in
       [ "$per" -ge 1 ] || { echo "TRAIN_N=$train_n is fewer than TERRAINS=$terrains" >&2; exit 2; }
       mkdir -p "$data/train"
       for ((k = 1; k <= terrains; k++)); do
-        s=$((100 + k)) part=$data-parts/s$((100 + k))
+        s=$((100 + k)) part=$data-parts/s$s
         if [ "$(done_pairs "$part" train)" -lt "$per" ]; then
           "$hs" simulate --scene terrain --seed "$s" --export-mesh "$part.stl" >/dev/null
           simulate "$part" train "$per" "$s" --site "$part.stl"

@@ -435,8 +435,7 @@ fn depth_maps(
             .all(|(f, layers)| layers.values().last().is_some_and(|v| v.as_slice() == f));
     Ok(DepthMaps {
         int8: depth_q.iter().map(|d| d.to_num::<f32>()).collect(),
-        float: floatref::run(&bundle.float, views)?
-            .decided(f64::from(model.no_return16()) / 65536.0),
+        float: floatref::run(&bundle.float, views)?.decided(model.no_return16()),
         bit_exact,
     })
 }

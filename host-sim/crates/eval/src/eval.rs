@@ -167,19 +167,16 @@ fn score(
 ) -> Result<Scores> {
     let bundle = weights::load(weights_dir)?;
     let folded = floatref::fold_all(&bundle.float)?;
-    let tau = bundle.no_return_mass()?;
-    let model = if int8 {
-        Some(
-            epssn::model::Model::from_blob(&bundle.blob)
-                .map_err(|e| anyhow!("int8 blob refused: {e:?}"))?,
-        )
-    } else {
-        None
-    };
+    // The float network is decided at the blob's no-return threshold too, so that float and
+    // int8 figures differ by the quantisation alone.
+    let int8_model = epssn::model::Model::from_blob(&bundle.blob)
+        .map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
+    let tau16 = int8_model.no_return16();
+    let model = int8.then_some(int8_model);
     let mut ws = Box::new(epssn::model::Workspace::new());
     let mut s = Scores::default();
     for sample in set {
-        let float = float_depth(&folded, sample, tau)?;
+        let float = float_depth(&folded, sample, tau16)?;
         if let Some(out) = save_depth_to {
             save_depth(out, sample, &float)?;
         }
@@ -208,9 +205,9 @@ fn score(
     Ok(s)
 }
 
-/// The float depth map of one sample, decided at the blob's no-return threshold `tau`; one
+/// The float depth map of one sample, decided at the blob's no-return threshold `tau16`; one
 /// view is fed as its own source, as training's single-view ablation does.
-fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample, tau: f64) -> Result<Vec<f32>> {
+fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample, tau16: u32) -> Result<Vec<f32>> {
     let views: Vec<&[u8]> = if sample.views.len() == 1 {
         vec![&sample.views[0], &sample.views[0]]
     } else {
@@ -218,7 +215,7 @@ fn float_depth(folded: &floatref::FoldedWeights, sample: &Sample, tau: f64) -> R
     };
     Ok(floatref::run_folded(folded, &views, &mut |_, _| {})
         .with_context(|| format!("float network on {}", sample.dir.display()))?
-        .decided(tau))
+        .decided(tau16))
 }
 
 /// Writes a sample's float depth map to `<out>/<sample folder name>/depth_float.npy`.

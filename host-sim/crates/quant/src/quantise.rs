@@ -129,16 +129,9 @@ pub fn restamp(dir: &Path, out: &mut impl std::io::Write) -> Result<()> {
     blob[body..].copy_from_slice(&crc.to_le_bytes());
     epssn::model::Model::from_blob(&blob)
         .map_err(|e| anyhow!("the re-stamped blob is refused: {e:?}"))?;
-    std::fs::write(&path, &blob).with_context(|| format!("writing {}", path.display()))?;
-    let qpath = dir.join("quantisation.json");
-    if let Ok(text) = std::fs::read_to_string(&qpath) {
-        let mut j: serde_json::Value = serde_json::from_str(&text)?;
+    write_blob_and_manifest(dir, &blob, |j, _| {
         j["spec_hash"] = format!("{:#010x}", config::SPEC_HASH).into();
-        if j.get("blob_crc32").is_some() {
-            j["blob_crc32"] = format!("{crc:#010x}").into();
-        }
-        std::fs::write(&qpath, serde_json::to_string_pretty(&j)? + "\n")?;
-    }
+    })?;
     writeln!(
         out,
         "re-stamped {}: spec {:#010x} -> {:#010x}, blob CRC {crc:#010x}",
@@ -149,14 +142,9 @@ pub fn restamp(dir: &Path, out: &mut impl std::io::Write) -> Result<()> {
     Ok(())
 }
 
-/// `blob` with its no-return threshold set to `tau` ([`epssn::model::NO_RETURN_TENSOR`],
-/// `round(τ · 2^16)`), every other tensor's bytes and order kept; checked by the library.
-pub fn with_no_return(blob: &[u8], tau: f64) -> Result<Vec<u8>> {
-    ensure!(
-        (0.0..=1.0).contains(&tau),
-        "no-return threshold {tau} is outside [0, 1]"
-    );
-    let tau16 = (tau * 65536.0).round() as i32;
+/// `blob` with the int32 tensor `name` set to `value` (`None`: removed): replaced in place, or
+/// appended; every other tensor's bytes and order kept, the spec hash the blob's own.
+pub fn with_i32_tensor(blob: &[u8], name: &str, value: Option<i32>) -> Result<Vec<u8>> {
     let hash = u32::from_le_bytes(
         blob.get(12..16)
             .context("too short for a blob")?
@@ -164,25 +152,36 @@ pub fn with_no_return(blob: &[u8], tau: f64) -> Result<Vec<u8>> {
     );
     let parsed =
         epssn::blob::Blob::parse(blob, hash).map_err(|e| anyhow!("not a valid blob: {e:?}"))?;
-    let value = tau16.to_le_bytes();
-    let name = epssn::model::NO_RETURN_TENSOR;
+    let v = value.map(i32::to_le_bytes);
     let mut tensors = Vec::new();
     for e in (0..parsed.tensor_count()).filter_map(|i| parsed.entry(i)) {
         let n = std::str::from_utf8(e.name).context("tensor name")?;
-        if n != name {
-            tensors.push((n, e.dtype, e.bytes));
+        match (n == name, &v) {
+            (false, _) => tensors.push((n, e.dtype, e.bytes)),
+            (true, Some(v)) => tensors.push((n, e.dtype, &v[..])),
+            (true, None) => {}
         }
     }
-    let at = tensors
-        .iter()
-        .position(|t| t.0 == epssn::model::VIEWS_TENSOR)
-        .map_or(tensors.len(), |i| i + 1);
-    tensors.insert(at, (name, epssn::blob::Dtype::I32, &value[..]));
-    let mut out = vec![0u8; blob.len() + epssn::blob::ENTRY_LEN + 8];
+    if let (Some(v), None) = (&v, tensors.iter().position(|t| t.0 == name)) {
+        tensors.push((name, epssn::blob::Dtype::I32, &v[..]));
+    }
+    let mut out = vec![0u8; blob.len() + epssn::blob::ENTRY_LEN + 8 + name.len()];
     let n = epssn::blob::write_blob(hash, &tensors, &mut out)
         .map_err(|e| anyhow!("writing the blob: {e:?}"))?;
     out.truncate(n);
-    if hash == config::SPEC_HASH {
+    Ok(out)
+}
+
+/// `blob` with its no-return threshold set to `tau` ([`epssn::model::NO_RETURN_TENSOR`],
+/// `round(τ · 2^16)`), every other tensor's bytes kept; checked by the library.
+pub fn with_no_return(blob: &[u8], tau: f64) -> Result<Vec<u8>> {
+    ensure!(
+        (0.0..=1.0).contains(&tau),
+        "no-return threshold {tau} is outside [0, 1]"
+    );
+    let tau16 = (tau * 65536.0).round() as i32;
+    let out = with_i32_tensor(blob, epssn::model::NO_RETURN_TENSOR, Some(tau16))?;
+    if out[12..16] == config::SPEC_HASH.to_le_bytes() {
         let model = epssn::model::Model::from_blob(&out)
             .map_err(|e| anyhow!("the blob with a no-return threshold is refused: {e:?}"))?;
         ensure!(
@@ -193,22 +192,39 @@ pub fn with_no_return(blob: &[u8], tau: f64) -> Result<Vec<u8>> {
     Ok(out)
 }
 
+/// Writes `blob` to `dir` and has `quantisation.json` (when there is one) follow it:
+/// `blob_crc32` where it records one, then `edit` (given the CRC). Returns the blob's CRC.
+fn write_blob_and_manifest(
+    dir: &Path,
+    blob: &[u8],
+    edit: impl FnOnce(&mut serde_json::Value, u32),
+) -> Result<u32> {
+    let path = dir.join(BLOB_FILE);
+    std::fs::write(&path, blob).with_context(|| format!("writing {}", path.display()))?;
+    let crc = epssn::crc32::crc32(&blob[..blob.len() - 4]);
+    let qpath = dir.join("quantisation.json");
+    if let Ok(text) = std::fs::read_to_string(&qpath) {
+        let mut j: serde_json::Value = serde_json::from_str(&text)?;
+        if j.get("blob_crc32").is_some() {
+            j["blob_crc32"] = format!("{crc:#010x}").into();
+        }
+        edit(&mut j, crc);
+        std::fs::write(&qpath, serde_json::to_string_pretty(&j)? + "\n")?;
+    }
+    Ok(crc)
+}
+
 /// `quantise --no-return-mass τ`: `dir`'s blob with its no-return threshold set to τ, and
 /// `quantisation.json` following (`no_return_mass`, `blob_bytes`, `blob_crc32`).
 pub fn set_no_return(dir: &Path, tau: f64, out: &mut impl std::io::Write) -> Result<()> {
     let path = dir.join(BLOB_FILE);
     let blob = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let blob = with_no_return(&blob, tau).with_context(|| path.display().to_string())?;
-    std::fs::write(&path, &blob).with_context(|| format!("writing {}", path.display()))?;
-    let crc = epssn::crc32::crc32(&blob[..blob.len() - 4]);
-    let qpath = dir.join("quantisation.json");
-    if let Ok(text) = std::fs::read_to_string(&qpath) {
-        let mut j: serde_json::Value = serde_json::from_str(&text)?;
+    let crc = write_blob_and_manifest(dir, &blob, |j, crc| {
         j["no_return_mass"] = tau.into();
         j["blob_bytes"] = blob.len().into();
         j["blob_crc32"] = format!("{crc:#010x}").into();
-        std::fs::write(&qpath, serde_json::to_string_pretty(&j)? + "\n")?;
-    }
+    })?;
     writeln!(
         out,
         "{}: no-return threshold {tau} (tau16 {}), blob CRC {crc:#010x}",

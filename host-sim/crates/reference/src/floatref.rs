@@ -30,9 +30,10 @@ pub struct FloatTrace {
 }
 
 impl FloatTrace {
-    /// The depth map under the no-return decision at threshold `tau` instead of the spec's
-    /// (a blob's own threshold, [`epssn::model::NO_RETURN_TENSOR`]; 0 decides nothing).
-    pub fn decided(&self, tau: f64) -> Vec<f32> {
+    /// The depth map under the no-return decision at threshold `round(τ · 2^16) = tau16`
+    /// instead of the spec's (the int8 model's own, `Model::no_return16`; 0 decides nothing).
+    pub fn decided(&self, tau16: u32) -> Vec<f32> {
+        let tau = f64::from(tau16) / 65536.0;
         self.soft_depth
             .iter()
             .zip(self.near_mass.iter().zip(&self.far_mass))

@@ -41,17 +41,6 @@ pub struct Bundle {
     pub description: String,
 }
 
-impl Bundle {
-    /// The no-return threshold τ the blob runs (its [`epssn::model::NO_RETURN_TENSOR`], else
-    /// the spec's `no_return_mass`): the float network is decided at the same τ, so that float
-    /// and int8 figures differ by the quantisation alone.
-    pub fn no_return_mass(&self) -> Result<f64> {
-        let model = epssn::model::Model::from_blob(&self.blob)
-            .map_err(|e| anyhow::anyhow!("int8 blob refused: {e:?}"))?;
-        Ok(f64::from(model.no_return16()) / 65536.0)
-    }
-}
-
 /// Loads `dir`'s blob and float weights.
 pub fn load(dir: &Path) -> Result<Bundle> {
     let blob_path = dir.join(BLOB_FILE);
