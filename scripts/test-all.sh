@@ -9,6 +9,20 @@ step() { printf '\n==> %s\n' "$*"; }
 # Every firmware build here embeds the test key for signed model updates, named explicitly (a
 # release firmware without EPSSN_UPDATE_KEY does not build; docs/UPDATE.md).
 export EPSSN_UPDATE_KEY=update/test-key/public
+# Each configuration builds once here: incremental caches would only take disk (gigabytes across
+# the target directories) for rebuilds that never come.
+export CARGO_INCREMENTAL=0
+
+step "disk"
+# The run needs about NEED_GB free (its target directories and the trainer's torch venv; measured
+# in docs/CI.md): a fuller disk is named here rather than as a linker's "No space left on device".
+need_gb=${EPSSN_CI_NEED_GB:-20}
+free_gb=$(df -Pk . | awk 'NR == 2 { print int($4 / 1048576) }')
+echo "free: ${free_gb} GB here (needed: about ${need_gb} GB)"
+if [ "$free_gb" -lt "$need_gb" ]; then
+    echo "error: ${free_gb} GB free on $(df -P . | awk 'NR == 2 { print $6 }'), the checks need about ${need_gb} GB" >&2
+    exit 1
+fi
 
 step "toolchain and tools"
 # rust-toolchain.toml names the toolchain, its components and the Cortex-M7 and M55 targets; rustup
