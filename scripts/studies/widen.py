@@ -3,7 +3,9 @@ m0 and u1 at 32 channels instead of 16) without changing what the network comput
 fit from it (`epssn-train fit --spec weights/epssn-pw.json --init-from OUT`) starts where the
 EPSSN-P model ended and only the extra channels are new.
 
-    python scripts/studies/widen.py weights/epssn-p-terrain OUT
+    "$(bash scripts/epssn-train.sh --python)" scripts/studies/widen.py weights/epssn-p-terrain OUT
+
+(the trainer's Python: it imports torch and epssn_train).
 
 The old channels keep their weights; each new channel of d2 and m0 gets small random weights
 (seed 0), zero bias and batch norm's identity; every weight that reads a new channel (m0's and
