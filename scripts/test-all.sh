@@ -14,13 +14,14 @@ export EPSSN_UPDATE_KEY=update/test-key/public
 export CARGO_INCREMENTAL=0
 
 step "disk"
-# The run needs about NEED_GB free (its target directories and the trainer's torch venv; measured
-# in docs/CI.md): a fuller disk is named here rather than as a linker's "No space left on device".
+# The run needs about EPSSN_CI_NEED_GB free (its target directories, the trainer's torch venv and
+# the fuzzers' builds; measured in docs/ARCHITECTURE.md): a fuller disk is named here rather than
+# as a linker's "No space left on device".
 need_gb=${EPSSN_CI_NEED_GB:-20}
-free_gb=$(df -Pk . | awk 'NR == 2 { print int($4 / 1048576) }')
-echo "free: ${free_gb} GB here (needed: about ${need_gb} GB)"
+read -r free_gb mount < <(df -Pk . | awk 'NR == 2 { print int($4 / 1048576), $6 }')
+echo "free: ${free_gb} GB on ${mount} (needed: about ${need_gb} GB)"
 if [ "$free_gb" -lt "$need_gb" ]; then
-    echo "error: ${free_gb} GB free on $(df -P . | awk 'NR == 2 { print $6 }'), the checks need about ${need_gb} GB" >&2
+    echo "error: ${free_gb} GB free on ${mount}, the checks need about ${need_gb} GB" >&2
     exit 1
 fi
 

@@ -133,9 +133,9 @@ case $protocol in
           simulate "$part" train "$per" "$s" --site "$part.stl"
           rm -f "$part.stl"
         fi
+        part_train=$(realpath "$part/train") # once per terrain, not once per link
         for ((i = 0; i < per; i++)); do
-          ln -sfn "$(realpath "$part/train/$(printf %06d "$i")")" \
-            "$data/train/$(printf %06d $(((k - 1) * per + i)))"
+          ln -sfn "$part_train/$(printf %06d "$i")" "$data/train/$(printf %06d $(((k - 1) * per + i)))"
         done
       done
       train_n=$((per * terrains))

@@ -48,8 +48,8 @@ def widen(narrow: dict, wide_shapes: dict) -> dict:
             continue
         layer, kind = name.split(".", 1)
         if kind == "conv.weight":
-            fan_in = int(np.prod(shape[1:])) if layer != "u1" else int(shape[1] * np.prod(shape[2:]))
-            w = grow(t, shape, rng, fan_in)
+            # d2's and m0's (out, in, ...) layout; u1's new part is all zeroed just below.
+            w = grow(t, shape, rng, fan_in=int(np.prod(shape[1:])))
             # Inputs that come from a new channel read zero: m0's (out, in, ...) and u1's
             # transposed (in, out, ...) layouts.
             if layer == "m0":
@@ -90,10 +90,9 @@ def main() -> None:
     wide = widen(narrow, wide_shapes(narrow, spec))
     dst.mkdir(parents=True, exist_ok=True)
     write_safetensors(dst / "model.safetensors", wide, {"widened_from": src})
+    # Only the weights are what `fit --init-from` reads; the spec names their shapes. The narrow
+    # model's manifest is not copied: it describes another spec's training.
     shutil.copy(WIDE_SPEC, dst / "spec.json")
-    manifest = src / "manifest.json"
-    if manifest.exists():
-        shutil.copy(manifest, dst / "manifest.json")
     check(src, dst)
 
 
