@@ -151,6 +151,9 @@ EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/ep
 # And on the Cortex-M55 with the Helium kernels (weights/budgets-m55-epssn-p.json).
 EPSSN_SPEC=weights/epssn-p.json cargo run -q -p epssn-sil --target-dir target/epssn-p -- \
     --target m55 --frames 3 --faults 0 --json
+# The general model (weights/paper, the blob those builds embed): its accuracy guard, every scene.
+EPSSN_SPEC=weights/epssn-p.json cargo test -p host-sim --test accuracy_guard \
+    --target-dir target/epssn-p -- --ignored --exact epssn_p_general_model_keeps_its_accuracy
 # Each model trained on one of the paper's protocols (weights/epssn-p-PROTOCOL, docs/PAPER.md):
 # embedded in turn, bit for bit on the M55; and its accuracy guard on fresh held-out data.
 for model in weights/epssn-p-*/; do

@@ -8,6 +8,8 @@
 //! four pings per view are averaged as a host averages recorded frames
 //! (`scripts/sim-params/looks-4-frames.json`). The tank site's model (`weights/site-tank/`) is
 //! guarded on poses drawn throughout the shipped tank (`simulate --site data/sites/tank.stl`).
+//! The EPSSN-P models (the general `weights/paper/` on every scene, each protocol's on its own
+//! data) have theirs in their folders, run by a host-sim built for that spec.
 //!
 //! After a deliberate change of a guarded model, rewrite the committed figures with
 //! `EPSSN_BLESS=1 cargo test -p host-sim --test accuracy_guard` and commit the files.
@@ -95,6 +97,18 @@ fn tank_site_model_keeps_its_accuracy_on_the_tank() {
 // The EPSSN-P guards run only in a host-sim built for the paper's input: scripts/test-all.sh runs
 // them in its EPSSN-P step with `EPSSN_SPEC=weights/epssn-p.json cargo test -p host-sim --test
 // accuracy_guard epssn_p -- --ignored`.
+
+#[test]
+#[ignore = "needs host-sim built with EPSSN_SPEC=weights/epssn-p.json"]
+/// The general EPSSN-P model (the blob EPSSN-P builds embed) on every scene, like EPSSN-S's.
+fn epssn_p_general_model_keeps_its_accuracy() {
+    guard(
+        Some("weights/paper"),
+        2,
+        "weights/paper/ACCURACY_GUARD.json",
+        None,
+    );
+}
 
 #[test]
 #[ignore = "needs host-sim built with EPSSN_SPEC=weights/epssn-p.json"]

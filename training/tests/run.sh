@@ -49,12 +49,7 @@ agree() { # label host-sim weights data
 "$hs_p" simulate --scene artificial --pairs 2 --seed 91004 --split test --no-preview --out "$tmp/p2" > /dev/null
 agree "EPSSN-S 2 views" "$hs" weights/general "$tmp/s2"
 agree "EPSSN-S 3 views" "$hs" weights/general-3view "$tmp/s3"
-# weights/paper/spec.json predates the spec's pair_residual_tolerance_deg (no layer reads it),
-# so this build refuses the folder as it stands: its model with today's spec file.
-mkdir "$tmp/paper"
-cp weights/paper/model.safetensors weights/paper/manifest.json weights/paper/epssn-p.q8.bin "$tmp/paper/"
-cp weights/epssn-p.json "$tmp/paper/spec.json"
-agree "EPSSN-P 2 views" "$hs_p" "$tmp/paper" "$tmp/p2"
+agree "EPSSN-P 2 views" "$hs_p" weights/paper "$tmp/p2"
 
 "$hs" simulate --scene sphere --pairs 16 --seed 91005 --split train --no-preview --out "$tmp/fit" > /dev/null
 OMP_NUM_THREADS=1 "$venv/bin/torchrun" --standalone --nproc_per_node 2 -m epssn_train fit \
