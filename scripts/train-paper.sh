@@ -30,6 +30,7 @@
 #                out/paper-data/terrain-K-terrains)
 #   TRAIN_N TEST_N VAL_N EPOCHS   sizes (per scene for general) and epochs, e.g. for a tiny check
 #   INIT_FROM    start from this weights folder (e.g. weights/paper) instead of at random
+#   KEEP_EPOCHS=1 keep each epoch's model in OUT/epochs/epoch-NNN/, to choose one on validation
 #   DEVICE       cpu, cuda or auto (epssn-train's default: auto); THREADS torch CPU threads
 #   LR           learning rate before its halving (default 1e-3); CE_WEIGHT, NO_RETURN_WEIGHT
 #                add epssn-train's extra loss terms (default 0: the paper's masked L1 only)
@@ -202,7 +203,7 @@ if ! fit_done; then
     --batch 16 --seed 1 --resume --limit "$fit_n" --val-limit "$fit_val" --scene "$protocol" \
     --no-progress ${INIT_FROM:+--init-from "$INIT_FROM"} ${DEVICE:+--device "$DEVICE"} \
     ${THREADS:+--threads "$THREADS"} ${CE_WEIGHT:+--ce-weight "$CE_WEIGHT"} \
-    ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"}
+    ${NO_RETURN_WEIGHT:+--no-return-weight "$NO_RETURN_WEIGHT"} ${KEEP_EPOCHS:+--keep-epochs}
 fi
 
 blob=$out/$(basename "$spec" .json).q8.bin

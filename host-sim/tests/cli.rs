@@ -98,3 +98,61 @@ fn cli_simulate_three_views_and_metrics_json() {
         .unwrap();
     assert!(!st.success());
 }
+
+/// `eval` reads a folder not yet quantised (a fit's output, an epoch `epssn-train fit
+/// --keep-epochs` kept) in float, at the spec's no-return threshold, and refuses `--int8` there
+/// naming the missing blob.
+#[test]
+fn eval_reads_an_unquantised_folder_in_float_and_refuses_int8() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let exe = env!("CARGO_BIN_EXE_host-sim");
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let st = std::process::Command::new(exe)
+        .args([
+            "simulate",
+            "--scene",
+            "artificial",
+            "--pairs",
+            "2",
+            "--seed",
+            "91006",
+        ])
+        .args(["--split", "test", "--no-preview", "--out"])
+        .arg(&data)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    // The folder of the shipped model of this build's spec, less its blob.
+    let shipped = epssn_reference::weights::firmware_weights_dir().unwrap();
+    let folder = dir.path().join("unquantised");
+    std::fs::create_dir(&folder).unwrap();
+    for f in ["model.safetensors", "spec.json", "manifest.json"] {
+        std::fs::copy(shipped.join(f), folder.join(f)).unwrap();
+    }
+    let eval = |int8: bool| {
+        let mut c = std::process::Command::new(exe);
+        c.current_dir(&root)
+            .arg("eval")
+            .arg("--weights")
+            .arg(&folder);
+        c.arg("--data").arg(&data).arg("--json");
+        if int8 {
+            c.arg("--int8");
+        }
+        c.output().unwrap()
+    };
+    let float = eval(false);
+    assert!(
+        float.status.success(),
+        "{}",
+        String::from_utf8_lossy(&float.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&float.stdout).unwrap();
+    let mae = v["float"]["mae"].as_f64().unwrap();
+    assert!(mae.is_finite() && mae > 0.0, "{v}");
+    let int8 = eval(true);
+    assert!(!int8.status.success());
+    let err = String::from_utf8_lossy(&int8.stderr);
+    assert!(err.contains(epssn_reference::weights::BLOB_FILE), "{err}");
+}

@@ -144,6 +144,9 @@ def main(argv=None) -> int:
     f.add_argument("--limit", type=int, help="use at most this many training samples")
     f.add_argument("--val-limit", type=int, default=200)
     f.add_argument("--checkpoint-minutes", type=float, default=5.0)
+    f.add_argument("--keep-epochs", action="store_true",
+                   help="also write each epoch's model to OUT/epochs/epoch-NNN/, a weights "
+                        "folder `host-sim eval` reads, to choose an epoch on validation")
     f.add_argument("--threads", type=int, help="torch CPU threads")
     f.add_argument("--scene", default="general", help="name recorded in the manifest")
     f.add_argument("--no-progress", action="store_true")

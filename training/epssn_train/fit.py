@@ -263,6 +263,8 @@ def fit(args) -> int:
             state["history"].append({"epoch": len(state["history"]) + 1, "step": state["step"],
                                      "train_loss": float(np.mean(state["epoch_losses"])),
                                      "val_loss": vl})
+            if args.keep_epochs:
+                write_epoch(spec, model, out, state["history"][-1]["epoch"], args.scene)
         state["epoch_losses"] = []
         save_checkpoint()
         last_ckpt = time.time()
@@ -274,6 +276,15 @@ def fit(args) -> int:
         dist.barrier()
         dist.destroy_process_group()
     return 0
+
+
+def write_epoch(spec, model, out, epoch, scene):
+    """One epoch's model as a weights folder of its own (weights and spec, no blob)."""
+    folder = out / "epochs" / f"epoch-{epoch:03d}"
+    folder.mkdir(parents=True, exist_ok=True)
+    write_safetensors(folder / WEIGHTS_FILE, model.to_tensors(),
+                      {"spec_name": spec.name, "scene": scene})
+    (folder / SPEC_FILE).write_bytes(spec.bytes)
 
 
 def write_outputs(args, spec, model, state, out, train_dir, val_dir, views, batch, lr, total,

@@ -54,7 +54,7 @@ agree "EPSSN-P 2 views" "$hs_p" weights/paper "$tmp/p2"
 "$hs" simulate --scene sphere --pairs 16 --seed 91005 --split train --no-preview --out "$tmp/fit" > /dev/null
 OMP_NUM_THREADS=1 "$venv/bin/torchrun" --standalone --nproc_per_node 2 -m epssn_train fit \
     --spec weights/epssn-s.json --data "$tmp/fit" --out "$tmp/ddp" --steps 10 --device cpu \
-    --no-progress 2> "$tmp/ddp.log" || { cat "$tmp/ddp.log"; exit 1; }
+    --keep-epochs --no-progress 2> "$tmp/ddp.log" || { cat "$tmp/ddp.log"; exit 1; }
 "$py" - "$tmp/ddp/loss.csv" <<'PY'
 import sys
 rows = [l.split(",") for l in open(sys.argv[1]).read().split()[1:]]
@@ -62,6 +62,20 @@ first, last = float(rows[0][2]), float(rows[-1][2])
 print(f"torchrun 2 processes, {len(rows)} steps: loss {first:.4f} -> {last:.4f}")
 sys.exit(0 if last < first else 1)
 PY
+# One step per epoch here: ten kept epochs, the last one's tensors those of the model the run
+# wrote (the files' metadata order varies).
+"$py" - "$tmp/ddp" <<'PY'
+import sys
+from pathlib import Path
+from safetensors.numpy import load_file
+out = Path(sys.argv[1])
+kept = sorted(p.name for p in (out / "epochs").iterdir())
+last, final = load_file(out / "epochs/epoch-010/model.safetensors"), load_file(out / "model.safetensors")
+same = last.keys() == final.keys() and all((last[k] == final[k]).all() for k in final)
+print(f"fit --keep-epochs: {len(kept)} epochs kept, the last equal to the model: {same}")
+sys.exit(0 if kept == [f"epoch-{e:03d}" for e in range(1, 11)] and same else 1)
+PY
+"$hs" eval --weights "$tmp/ddp/epochs/epoch-005" --data "$tmp/s2" > /dev/null
 "$hs" quantise --weights "$tmp/ddp" --calib "$tmp/fit" --calibration-samples 4 > /dev/null
 "$hs" eval --weights "$tmp/ddp" --data "$tmp/s2" | tail -1
 echo "trainer check $((SECONDS - start)) s"

@@ -165,14 +165,28 @@ fn score(
     breakdown: bool,
     save_depth_to: Option<&Path>,
 ) -> Result<Scores> {
-    let bundle = weights::load(weights_dir)?;
-    let folded = floatref::fold_all(&bundle.float)?;
+    let (float_weights, _) = weights::load_float(weights_dir)?;
+    let folded = floatref::fold_all(&float_weights)?;
     // The float network is decided at the blob's no-return threshold too, so that float and
-    // int8 figures differ by the quantisation alone.
-    let int8_model = epssn::model::Model::from_blob(&bundle.blob)
-        .map_err(|e| anyhow!("int8 blob refused: {e:?}"))?;
-    let tau16 = int8_model.no_return16();
-    let model = int8.then_some(int8_model);
+    // int8 figures differ by the quantisation alone. A folder not yet quantised (a fit's
+    // output, a kept epoch) is read in float at the spec's threshold.
+    let blob_path = weights_dir.join(weights::BLOB_FILE);
+    let blob = if int8 || blob_path.exists() {
+        Some(
+            std::fs::read(&blob_path)
+                .with_context(|| format!("reading {}", blob_path.display()))?,
+        )
+    } else {
+        None
+    };
+    let int8_model = blob
+        .as_deref()
+        .map(|b| epssn::model::Model::from_blob(b).map_err(|e| anyhow!("int8 blob refused: {e:?}")))
+        .transpose()?;
+    let tau16 = int8_model
+        .as_ref()
+        .map_or(epssn::config::NO_RETURN_MASS_Q16, |m| m.no_return16());
+    let model = if int8 { int8_model } else { None };
     let mut ws = Box::new(epssn::model::Workspace::new());
     let mut s = Scores::default();
     for sample in set {

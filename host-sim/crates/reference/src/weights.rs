@@ -46,13 +46,23 @@ pub fn load(dir: &Path) -> Result<Bundle> {
     let blob_path = dir.join(BLOB_FILE);
     let blob =
         std::fs::read(&blob_path).with_context(|| format!("reading {}", blob_path.display()))?;
+    let (float, description) = load_float(dir)?;
+    Ok(Bundle {
+        blob,
+        float,
+        description,
+    })
+}
+
+/// Loads `dir`'s float weights alone (a folder not yet quantised may have no blob), and where
+/// they came from.
+pub fn load_float(dir: &Path) -> Result<(FloatWeights, String)> {
     let st = dir.join("model.safetensors");
     if st.exists() {
-        return Ok(Bundle {
-            blob,
-            float: crate::safetensors_io::load_float_weights(&st)?,
-            description: format!("trained, {}", st.display()),
-        });
+        return Ok((
+            crate::safetensors_io::load_float_weights(&st)?,
+            format!("trained, {}", st.display()),
+        ));
     }
     let q = dir.join("quantisation.json");
     let text = std::fs::read_to_string(&q).with_context(|| format!("reading {}", q.display()))?;
@@ -61,11 +71,10 @@ pub fn load(dir: &Path) -> Result<Bundle> {
         .pointer("/float_source/random_init")
         .and_then(|s| s.as_u64())
     {
-        Some(seed) => Ok(Bundle {
-            blob,
-            float: crate::float::random_float_weights(seed),
-            description: format!("UNTRAINED: He-initialised float weights, seed {seed}"),
-        }),
+        Some(seed) => Ok((
+            crate::float::random_float_weights(seed),
+            format!("UNTRAINED: He-initialised float weights, seed {seed}"),
+        )),
         None => bail!(
             "{}: no model.safetensors and no float_source in quantisation.json",
             dir.display()
