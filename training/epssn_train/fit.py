@@ -264,7 +264,8 @@ def fit(args) -> int:
                                      "train_loss": float(np.mean(state["epoch_losses"])),
                                      "val_loss": vl})
             if args.keep_epochs:
-                write_epoch(spec, model, out, state["history"][-1]["epoch"], args.scene)
+                epoch = state["history"][-1]["epoch"]
+                write_model(out / "epochs" / f"epoch-{epoch:03d}", spec, model, args.scene)
         state["epoch_losses"] = []
         save_checkpoint()
         last_ckpt = time.time()
@@ -278,9 +279,8 @@ def fit(args) -> int:
     return 0
 
 
-def write_epoch(spec, model, out, epoch, scene):
-    """One epoch's model as a weights folder of its own (weights and spec, no blob)."""
-    folder = out / "epochs" / f"epoch-{epoch:03d}"
+def write_model(folder: Path, spec, model, scene):
+    """The model as a weights folder `host-sim eval` reads: its weights and its spec."""
     folder.mkdir(parents=True, exist_ok=True)
     write_safetensors(folder / WEIGHTS_FILE, model.to_tensors(),
                       {"spec_name": spec.name, "scene": scene})
@@ -289,9 +289,7 @@ def write_epoch(spec, model, out, epoch, scene):
 
 def write_outputs(args, spec, model, state, out, train_dir, val_dir, views, batch, lr, total,
                   n_train, n_val, fq, world):
-    write_safetensors(out / WEIGHTS_FILE, model.to_tensors(),
-                      {"spec_name": spec.name, "scene": args.scene})
-    (out / SPEC_FILE).write_bytes(spec.bytes)
+    write_model(out, spec, model, args.scene)
     write_loss_csv(out / "loss.csv", state["history"])
     plot_curves(out / "loss.png", state["history"])
     last = state["history"][-1] if state["history"] else None

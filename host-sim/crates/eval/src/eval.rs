@@ -170,12 +170,8 @@ fn score(
     // The float network is decided at the blob's no-return threshold too, so that float and
     // int8 figures differ by the quantisation alone. A folder not yet quantised (a fit's
     // output, a kept epoch) is read in float at the spec's threshold.
-    let blob_path = weights_dir.join(weights::BLOB_FILE);
-    let blob = if int8 || blob_path.exists() {
-        Some(
-            std::fs::read(&blob_path)
-                .with_context(|| format!("reading {}", blob_path.display()))?,
-        )
+    let blob = if int8 || weights_dir.join(weights::BLOB_FILE).exists() {
+        Some(weights::read_blob(weights_dir)?)
     } else {
         None
     };

@@ -43,15 +43,19 @@ pub struct Bundle {
 
 /// Loads `dir`'s blob and float weights.
 pub fn load(dir: &Path) -> Result<Bundle> {
-    let blob_path = dir.join(BLOB_FILE);
-    let blob =
-        std::fs::read(&blob_path).with_context(|| format!("reading {}", blob_path.display()))?;
+    let blob = read_blob(dir)?;
     let (float, description) = load_float(dir)?;
     Ok(Bundle {
         blob,
         float,
         description,
     })
+}
+
+/// Reads `dir`'s blob (`BLOB_FILE`), naming the file when it cannot.
+pub fn read_blob(dir: &Path) -> Result<Vec<u8>> {
+    let path = dir.join(BLOB_FILE);
+    std::fs::read(&path).with_context(|| format!("reading {}", path.display()))
 }
 
 /// Loads `dir`'s float weights alone (a folder not yet quantised may have no blob), and where
