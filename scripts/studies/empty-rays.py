@@ -17,22 +17,30 @@ the soft-argmax's first bin stands for r_min − K·step, so a model that puts n
 them one step (12.1 mm on EPSSN-P's grid) above r_min at best.
 
     host-sim eval --weights W --data DATA --breakdown --save-depth PRED   # a host-sim built for W's spec
-    python3 scripts/studies/empty-rays.py DATA/test PRED --r-min 2.0 --r-max 3.536
+    python3 scripts/studies/empty-rays.py DATA/test PRED --spec W/spec.json
 
 DATA/test holds the samples (`depth.npy`, `mask.npy`), PRED the `<sample>/depth_float.npy` that
-`--save-depth` writes. Needs numpy.
+`--save-depth` writes; the window comes from the spec. The rays are classed as
+`epssn_sim::metrics::ErrorBreakdown` classes them (a ray outside the mask is near when its
+clamped label reads below the window's middle, far otherwise), so the empty classes add up to its
+empty near and empty far. Needs numpy.
 """
 import argparse
+import json
 import os
 
 import numpy as np
 
 
-def classify(depth, mask, r_min, r_max):
-    """Boolean masks `[E][A]` of each ray class; row 0 is the lowest elevation."""
-    d = np.clip(depth, r_min, r_max)
-    near = ~mask & (d <= r_min)
-    far = ~mask & (d >= r_max)
+def empty_near(label, mask, r_min, r_max):
+    """Rays outside the mask whose clamped label reads r_min (ErrorBreakdown's `empty_near`)."""
+    return ~mask & (label < (r_min + r_max) / 2.0)
+
+
+def classify(label, mask, r_min, r_max):
+    """Boolean masks `[E][A]` of each ray class, `label` clamped; row 0 is the lowest elevation."""
+    near = empty_near(label, mask, r_min, r_max)
+    far = ~mask & ~near
     with_surface = mask.any(axis=0)[None, :]
     lowest = np.where(mask.any(axis=0), mask.argmax(axis=0), mask.shape[0])
     below = np.arange(mask.shape[0])[:, None] < lowest[None, :]
@@ -50,31 +58,34 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", help="folder of samples (depth.npy, mask.npy)")
     ap.add_argument("pred", help="folder of <sample>/depth_float.npy (eval --save-depth)")
-    ap.add_argument("--r-min", type=float, required=True, help="window start, metres (spec)")
-    ap.add_argument("--r-max", type=float, required=True, help="window end, metres (spec)")
+    ap.add_argument("--spec", required=True, help="the model's spec (its range window)")
     a = ap.parse_args()
+    with open(a.spec) as f:
+        window = json.load(f)["range_window"]
+    r_min, r_max = window["r_min_m"], window["r_max_m"]
 
-    sums, counts, pixels, maps = {}, {}, 0, 0
+    sums, counts, total_mm, pixels, maps = {}, {}, 0.0, 0, 0
     near_above_r_min = []
     for sample in sorted(os.listdir(a.pred)):
         pred = np.load(os.path.join(a.pred, sample, "depth_float.npy")).astype(np.float64)
         depth = np.load(os.path.join(a.data, sample, "depth.npy")).astype(np.float64)
-        mask = np.load(os.path.join(a.data, sample, "mask.npy")).astype(bool)
+        mask = np.load(os.path.join(a.data, sample, "mask.npy")) > 0.5  # metrics::mask_from_f32
         if pred.shape != depth.shape:
             raise SystemExit(f"{sample}: prediction {pred.shape} against label {depth.shape}")
-        err_mm = 1000.0 * np.abs(pred - np.clip(depth, a.r_min, a.r_max))
-        for name, sel in classify(depth, mask, a.r_min, a.r_max).items():
+        label = np.clip(depth, r_min, r_max)
+        err_mm = 1000.0 * np.abs(pred - label)
+        for name, sel in classify(label, mask, r_min, r_max).items():
             sums[name] = sums.get(name, 0.0) + err_mm[sel].sum()
             counts[name] = counts.get(name, 0) + int(sel.sum())
-        near = ~mask & (np.clip(depth, a.r_min, a.r_max) <= a.r_min)
-        near_above_r_min.append(1000.0 * (pred[near] - a.r_min))
+        near = empty_near(label, mask, r_min, r_max)
+        near_above_r_min.append(1000.0 * (pred[near] - r_min))
+        total_mm += err_mm.sum()
         pixels += err_mm.size
         maps += 1
     if maps == 0:
         raise SystemExit(f"no predictions in {a.pred}")
 
-    total = sum(sums.values()) / pixels
-    print(f"{maps} maps, all-pixel MAE {total:.2f} mm")
+    print(f"{maps} maps, all-pixel MAE {total_mm / pixels:.2f} mm")
     print(f"{'class':48} {'pixels':>7} {'MAE mm':>8} {'adds mm':>8}")
     for name in sums:
         c = counts[name]
