@@ -17,7 +17,8 @@ the soft-argmax's first bin stands for r_min − K·step, so a model that puts n
 them one step (12.1 mm on EPSSN-P's grid) above r_min at best.
 
     host-sim eval --weights W --data DATA --breakdown --save-depth PRED   # a host-sim built for W's spec
-    python3 scripts/studies/empty-rays.py DATA/test PRED --spec W/spec.json
+    "$(bash scripts/epssn-train.sh --python)" scripts/studies/empty-rays.py DATA/test PRED \
+        --spec W/spec.json   # the trainer's Python, which has numpy
 
 DATA/test holds the samples (`depth.npy`, `mask.npy`), PRED the `<sample>/depth_float.npy` that
 `--save-depth` writes; the window comes from the spec. The rays are classed as
