@@ -1,4 +1,4 @@
-"""`epssn-train`: fit, predict, bench (docs/TRAINING.md)."""
+"""`epssn-train`: fit, predict, bench, average (docs/TRAINING.md)."""
 
 from __future__ import annotations
 
@@ -178,6 +178,20 @@ def main(argv=None) -> int:
     b.add_argument("--ce-weight", type=float, default=0.02)
     b.add_argument("--no-return-weight", type=float, default=0.7)
 
+    a = sub.add_parser("average", help="the tensor-by-tensor mean of weights folders of one spec")
+    a.add_argument("weights", nargs="+", type=Path,
+                   help="weights folders, e.g. a run's epochs/epoch-NNN kept by fit --keep-epochs")
+    a.add_argument("--out", required=True, type=Path)
+    a.add_argument("--bn-data", type=Path,
+                   help="measure batch norm's running statistics again on this data's training "
+                        "samples (else they are the folders' mean)")
+    a.add_argument("--bn-samples", type=int, default=512)
+    a.add_argument("--bn-batch", type=int, default=16)
+    a.add_argument("--fake-quant", type=Path,
+                   help="with --bn-data: round activations to this quantised folder's scales, "
+                        "as a quantisation-aware run trained")
+    a.add_argument("--threads", type=int, help="torch CPU threads")
+
     args = p.parse_args(argv)
     # Before torch loads its OpenMP runtime: idle threads sleep rather than spin. On a machine
     # whose cores other work shares, spinning made a 2-thread EPSSN-S step 3-4x slower
@@ -194,5 +208,10 @@ def main(argv=None) -> int:
         return predict(args)
     if args.cmd == "bench":
         return bench(args)
+    if args.cmd == "average":
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        from .average import average
+        return average(args)
     from .fit import fit
     return fit(args)

@@ -111,3 +111,75 @@ def test_subpixel_transposed_convolution_equals_pytorchs(name):
     gr = torch.autograd.grad(ref, (x, blk.conv.weight), g)
     for a, b in zip(gy, gr):
         assert torch.allclose(a, b, atol=1e-10)
+
+
+def _weights_folder(folder, spec, seed, views):
+    from epssn_train.fit import write_model
+    torch.manual_seed(seed)
+    model = Epssn(spec)
+    init_uniform(model, seed)
+    write_model(folder, spec, model, "test")
+    (folder / "manifest.json").write_text(f'{{"views": {views}, "scene": "test"}}')
+    return model.to_tensors()
+
+
+def test_average_writes_each_tensors_mean_and_refuses_other_specs(tmp_path):
+    from epssn_train.cli import main
+    from epssn_train.io import read_safetensors
+    spec = Spec(ROOT / "weights" / "epssn-s.json")
+    a = _weights_folder(tmp_path / "a", spec, 1, 2)
+    run = tmp_path / "run"
+    b = _weights_folder(run / "epochs" / "epoch-001", spec, 2, 2)
+    (run / "epochs" / "epoch-001" / "manifest.json").unlink()  # fit --keep-epochs writes none
+    (run / "manifest.json").write_text('{"views": 2}')
+    assert main(["average", str(tmp_path / "a"), str(run / "epochs" / "epoch-001"),
+                 "--out", str(tmp_path / "mean")]) == 0
+    mean = read_safetensors(tmp_path / "mean" / "model.safetensors")
+    assert sorted(mean) == sorted(a)
+    for k in a:
+        want = (a[k].detach().double() + b[k].detach().double()) / 2
+        assert np.allclose(mean[k], want.numpy(), rtol=1e-6, atol=1e-7), k
+    assert any(not np.allclose(mean[k], a[k].detach().numpy()) for k in a)
+    assert (tmp_path / "mean" / "spec.json").read_bytes() == spec.bytes
+    assert '"views": 2' in (tmp_path / "mean" / "manifest.json").read_text()
+
+    other = Spec(ROOT / "weights" / "epssn-p.json")
+    _weights_folder(tmp_path / "p", other, 3, 2)
+    with pytest.raises(SystemExit, match="differs"):
+        main(["average", str(tmp_path / "a"), str(tmp_path / "p"), "--out", str(tmp_path / "x")])
+    _weights_folder(tmp_path / "v3", spec, 4, 3)
+    with pytest.raises(SystemExit, match="different views"):
+        main(["average", str(tmp_path / "a"), str(tmp_path / "v3"), "--out", str(tmp_path / "y")])
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_average_measures_batch_norm_again_on_data(tmp_path):
+    from epssn_train.cli import main
+    from epssn_train.io import read_safetensors
+    spec = Spec(ROOT / "weights" / "epssn-s.json")
+    a = _weights_folder(tmp_path / "a", spec, 1, 2)
+    _weights_folder(tmp_path / "b", spec, 2, 2)
+    rng = np.random.default_rng(5)
+    for i in range(5):  # one batch of 4 and one of 1: the mean must weigh every sample alike
+        d = tmp_path / "data" / "train" / f"{i:06d}"
+        d.mkdir(parents=True)
+        for k in range(2):
+            v = rng.integers(0, 256, (spec.range_bins, spec.beam_columns)).astype(np.float32)
+            np.save(d / f"polar_view{k}.npy", v)
+        np.save(d / "depth.npy", np.full((spec.rows, spec.columns), 2.5, np.float32))
+        np.save(d / "mask.npy", np.zeros((spec.rows, spec.columns), np.float32))
+    assert main(["average", str(tmp_path / "a"), str(tmp_path / "b"), "--out",
+                 str(tmp_path / "m"), "--bn-data", str(tmp_path / "data"),
+                 "--bn-batch", "4"]) == 0
+    m = read_safetensors(tmp_path / "m" / "model.safetensors")
+    # f0, the first layer, sees both views of every sample: its statistics are those of its
+    # convolution's output over them.
+    x = torch.from_numpy(np.stack([np.load(tmp_path / "data" / "train" / f"{i:06d}" /
+                                           f"polar_view{k}.npy")
+                                   for i in range(5) for k in range(2)]))[:, None] / 255.0
+    w = torch.from_numpy(m["f0.conv.weight"]).float()
+    bias = torch.from_numpy(m["f0.conv.bias"]).float()
+    y = torch.nn.functional.conv2d(x, w, bias, stride=2, padding=1)
+    assert np.allclose(m["f0.bn.running_mean"], y.mean((0, 2, 3)).numpy(), rtol=1e-4, atol=1e-6)
+    assert not np.allclose(m["f0.bn.running_mean"], a["f0.bn.running_mean"].detach().numpy())
+    assert "measured on 5 samples" in (tmp_path / "m" / "manifest.json").read_text()
