@@ -95,17 +95,42 @@ def batch_norm_from_data(folder: Path, mean: dict, args, views: int | None):
     return {k: v.detach().double().numpy() for k, v in model.to_tensors().items()}, line
 
 
-def average(args) -> int:
-    folders = [Path(f) for f in args.weights]
+def check_args(args, folders: list[Path]):
+    """Refusals before anything is read or written, each with its reason."""
     if len(folders) < 2:
         raise SystemExit("average needs two weights folders or more")
-    spec_bytes = (folders[0] / SPEC_FILE).read_bytes()
-    for folder in folders[1:]:
-        if (folder / SPEC_FILE).read_bytes() != spec_bytes:
+    if args.fake_quant is not None and args.bn_data is None:
+        raise SystemExit("--fake-quant rounds the activations batch norm is measured on: "
+                         "it needs --bn-data")
+    if args.bn_samples < 1 or args.bn_batch < 1:
+        raise SystemExit("--bn-samples and --bn-batch must be at least 1")
+    out = Path(args.out).resolve()
+    if any(f.resolve() == out for f in folders):
+        raise SystemExit(f"--out {args.out} is one of the folders averaged: it would be "
+                         "overwritten")
+
+
+def read_folder(folder: Path) -> tuple[bytes, dict]:
+    """A weights folder's spec bytes and tensors, or a clear error naming what is missing."""
+    try:
+        return (folder / SPEC_FILE).read_bytes(), read_safetensors(folder / WEIGHTS_FILE)
+    except OSError as e:
+        raise SystemExit(f"{folder}: not a weights folder ({e})")
+    except Exception as e:  # safetensors' own error type for a damaged file
+        raise SystemExit(f"{folder}/{WEIGHTS_FILE}: unreadable ({e})")
+
+
+def average(args) -> int:
+    folders = [Path(f) for f in args.weights]
+    check_args(args, folders)
+    read = [read_folder(f) for f in folders]
+    spec_bytes = read[0][0]
+    for folder, (other, _) in zip(folders[1:], read[1:]):
+        if other != spec_bytes:
             raise SystemExit(f"{folder}/{SPEC_FILE} differs from {folders[0]}'s: "
                              "only models of one spec average")
     try:
-        mean = mean_tensors(folders, [read_safetensors(f / WEIGHTS_FILE) for f in folders])
+        mean = mean_tensors(folders, [t for _, t in read])
     except ValueError as e:
         raise SystemExit(str(e))
     manifests = [run_manifest(f) for f in folders]

@@ -150,7 +150,18 @@ def test_average_writes_each_tensors_mean_and_refuses_other_specs(tmp_path):
     _weights_folder(tmp_path / "v3", spec, 4, 3)
     with pytest.raises(SystemExit, match="different views"):
         main(["average", str(tmp_path / "a"), str(tmp_path / "v3"), "--out", str(tmp_path / "y")])
-    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    with pytest.raises(SystemExit, match="not a weights folder"):
+        main(["average", str(tmp_path / "a"), str(tmp_path / "nothing"), "--out",
+              str(tmp_path / "z")])
+    before = (tmp_path / "mean" / "model.safetensors").read_bytes()
+    with pytest.raises(SystemExit, match="overwritten"):
+        main(["average", str(tmp_path / "a"), str(tmp_path / "mean"), "--out",
+              str(tmp_path / "mean")])
+    with pytest.raises(SystemExit, match="needs --bn-data"):
+        main(["average", str(tmp_path / "a"), str(tmp_path / "mean"), "--out",
+              str(tmp_path / "w"), "--fake-quant", str(tmp_path / "a")])
+    assert not any((tmp_path / d).exists() for d in ("x", "y", "z", "w"))
+    assert (tmp_path / "mean" / "model.safetensors").read_bytes() == before
 
 
 def test_average_measures_batch_norm_again_on_data(tmp_path):
