@@ -14,7 +14,14 @@ says (a wrong class costs the window's width) — against what a model reads the
 rays are counted apart.
 
     "$(bash scripts/epssn-train.sh --python)" scripts/studies/dark-columns.py DATA/test \\
-        --spec weights/epssn-p.json [--limit N]
+        --spec weights/epssn-p.json [--limit N] [--learned TRAIN_DATA --train-limit N]
+
+`--learned` also fits gradient-boosted trees (scikit-learn) on the dark rays of TRAIN_DATA's maps
+and scores them here: per ray its row and column, the width of its dark run, and for the two
+nearest surface beams on each side their distance, their class at its row, their lowest and
+highest surface rows, the depth at the lowest, and their share of near rays; the map's share of
+surface, and of near rays among the beams that show one. A ceiling on what the window's neighbourhood tells, read from the
+ground truth rather than from the images the network sees.
 """
 import argparse
 import json
@@ -47,32 +54,108 @@ def neighbour_rule(near, mask):
     return guess
 
 
+def column_summary(near, mask, depth01):
+    """Per column: (lowest surface row, highest surface row, depth at the lowest in [0, 1], share
+    of near rays); rows -1 where the column shows no surface."""
+    e = mask.shape[0]
+    lit = mask.any(axis=0)
+    lo = np.where(lit, mask.argmax(axis=0), -1)
+    hi = np.where(lit, e - 1 - mask[::-1].argmax(axis=0), -1)
+    d_lo = np.where(lit, depth01[np.clip(lo, 0, e - 1), np.arange(mask.shape[1])], -1.0)
+    return lo, hi, d_lo, near.mean(axis=0)
+
+
+def dark_ray_features(near, mask, depth01):
+    """(features [n][F], near [n]) of every ray in a dark column of one map showing a surface."""
+    e, a = mask.shape
+    lit = np.flatnonzero(mask.any(axis=0))
+    dark = np.flatnonzero(~mask.any(axis=0))
+    if lit.size == 0 or dark.size == 0:
+        return None
+    lo, hi, d_lo, share = column_summary(near, mask, depth01)
+    rows = np.arange(e)
+    # Over the lit columns only: the dark rays' own classes are what is being guessed.
+    mask_share, near_share = mask.mean(), near[:, lit].mean()
+    feats, labels = [], []
+    for c in dark:
+        run_left = c - (lit[lit < c][-1] if (lit < c).any() else -1) - 1
+        run_right = (lit[lit > c][0] if (lit > c).any() else a) - c - 1
+        cols = [np.full(e, r, np.float64) for r in (c / a, run_left + run_right + 1)]
+        cols.insert(0, rows / e)
+        for side in (lit[lit < c][::-1][:2], lit[lit > c][:2]):
+            for k in range(2):
+                if k < side.size:
+                    n = side[k]
+                    vals = [abs(int(n) - int(c)), None, lo[n] / e, hi[n] / e, d_lo[n], share[n], 1.0]
+                    cols += [np.full(e, v, np.float64) if v is not None else near[:, n].astype(np.float64)
+                             for v in vals]
+                else:
+                    cols += [np.full(e, v, np.float64) for v in (a, -1, -1, -1, -1, -1, 0.0)]
+        cols += [np.full(e, mask_share), np.full(e, near_share)]
+        feats.append(np.stack(cols, axis=1))
+        labels.append(near[:, c])
+    return np.concatenate(feats), np.concatenate(labels)
+
+
+def read_map(folder, sample, r_min, r_max):
+    depth = np.load(os.path.join(folder, sample, "depth.npy")).astype(np.float64)
+    mask = np.load(os.path.join(folder, sample, "mask.npy")) > 0.5  # metrics::mask_from_f32
+    label = np.clip(depth, r_min, r_max)
+    return near_class(label, r_min, r_max), mask, (label - r_min) / (r_max - r_min)
+
+
+def sample_names(folder, limit):
+    return sorted(s for s in os.listdir(folder)
+                  if os.path.isfile(os.path.join(folder, s, "depth.npy")))[:limit]
+
+
+def learned_rule(train, limit, test, test_names, r_min, r_max):
+    """Share of the test maps' dark rays the trees class right, and that count."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    xs, ys = [], []
+    for s in sample_names(train, limit):
+        f = dark_ray_features(*read_map(train, s, r_min, r_max))
+        if f is not None:
+            xs.append(f[0])
+            ys.append(f[1])
+    if not xs:
+        raise SystemExit(f"no dark columns in {train}")
+    trees = HistGradientBoostingClassifier(max_iter=300, random_state=0)
+    trees.fit(np.concatenate(xs), np.concatenate(ys))
+    right = total = 0
+    for s in test_names:
+        f = dark_ray_features(*read_map(test, s, r_min, r_max))
+        if f is not None:
+            right += int((trees.predict(f[0]) == f[1]).sum())
+            total += f[1].size
+    return right, total, sum(y.size for y in ys)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", help="folder of samples (depth.npy, mask.npy)")
     ap.add_argument("--spec", required=True, help="the spec whose range window classes the rays")
     ap.add_argument("--limit", type=int)
+    ap.add_argument("--learned", help="fit gradient-boosted trees on this data's dark rays")
+    ap.add_argument("--train-limit", type=int, default=1000)
     a = ap.parse_args()
     with open(a.spec) as f:
         window = json.load(f)["range_window"]
     r_min, r_max = window["r_min_m"], window["r_max_m"]
     width_mm = 1000.0 * (r_max - r_min)
 
-    samples = sorted(s for s in os.listdir(a.data)
-                     if os.path.isfile(os.path.join(a.data, s, "depth.npy")))[:a.limit]
+    samples = sample_names(a.data, a.limit)
     pixels = dark = dark_near = right = unlit = unlit_maps = 0
     for sample in samples:
-        depth = np.load(os.path.join(a.data, sample, "depth.npy")).astype(np.float64)
-        mask = np.load(os.path.join(a.data, sample, "mask.npy")) > 0.5  # metrics::mask_from_f32
-        near = near_class(np.clip(depth, r_min, r_max), r_min, r_max)
+        near, mask, _ = read_map(a.data, sample, r_min, r_max)
         cols = ~mask.any(axis=0)
-        pixels += depth.size
+        pixels += near.size
         guess = neighbour_rule(near, mask)
         if guess is None:
-            unlit += depth.size
+            unlit += near.size
             unlit_maps += 1
             continue
-        sel = np.broadcast_to(cols[None, :], depth.shape)
+        sel = np.broadcast_to(cols[None, :], near.shape)
         dark += int(sel.sum())
         dark_near += int((near & sel).sum())
         right += int(((guess == near) & sel).sum())
@@ -88,6 +171,11 @@ def main():
           f"{width_mm:.0f} mm)")
     always_far = dark_near
     print(f"for scale, reading every dark-column ray at r_max: {width_mm * always_far / pixels:.2f} mm")
+    if a.learned:
+        right, total, fitted = learned_rule(a.learned, a.train_limit, a.data, samples, r_min, r_max)
+        print(f"gradient-boosted trees fitted on {fitted} dark rays of {a.learned}: "
+              f"{100 * right / max(total, 1):.1f} % classed right here, "
+              f"{width_mm * (total - right) / pixels:.2f} mm of all-pixel MAE")
 
 
 if __name__ == "__main__":
