@@ -111,7 +111,10 @@ def sample_names(folder, limit):
 
 def learned_rule(train, limit, test, test_names, r_min, r_max):
     """Share of the test maps' dark rays the trees class right, and that count."""
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    try:
+        from sklearn.ensemble import HistGradientBoostingClassifier
+    except ImportError:
+        raise SystemExit("--learned needs scikit-learn: pip install scikit-learn")
     xs, ys = [], []
     for s in sample_names(train, limit):
         f = dark_ray_features(*read_map(train, s, r_min, r_max))
