@@ -20,8 +20,8 @@ rays are counted apart.
 and scores them here: per ray its row and column, the width of its dark run, and for the two
 nearest surface beams on each side their distance, their class at its row, their lowest and
 highest surface rows, the depth at the lowest, and their share of near rays; the map's share of
-surface, and of near rays among the beams that show one. A ceiling on what the window's neighbourhood tells, read from the
-ground truth rather than from the images the network sees.
+surface, and of near rays among the beams that show one. A ceiling on what the window's
+neighbourhood tells, read from the ground truth rather than from the images the network sees.
 """
 import argparse
 import json
@@ -80,8 +80,7 @@ def dark_ray_features(near, mask, depth01):
     for c in dark:
         run_left = c - (lit[lit < c][-1] if (lit < c).any() else -1) - 1
         run_right = (lit[lit > c][0] if (lit > c).any() else a) - c - 1
-        cols = [np.full(e, r, np.float64) for r in (c / a, run_left + run_right + 1)]
-        cols.insert(0, rows / e)
+        cols = [rows / e, np.full(e, c / a), np.full(e, run_left + run_right + 1.0)]
         for side in (lit[lit < c][::-1][:2], lit[lit > c][:2]):
             for k in range(2):
                 if k < side.size:
@@ -109,8 +108,9 @@ def sample_names(folder, limit):
                   if os.path.isfile(os.path.join(folder, s, "depth.npy")))[:limit]
 
 
-def learned_rule(train, limit, test, test_names, r_min, r_max):
-    """Share of the test maps' dark rays the trees class right, and that count."""
+def learned_rule(train, limit, test_maps, r_min, r_max):
+    """Dark rays of `test_maps` (read_map's triples) the trees class right, all of them, and
+    the dark rays they were fitted on."""
     try:
         from sklearn.ensemble import HistGradientBoostingClassifier
     except ImportError:
@@ -126,8 +126,8 @@ def learned_rule(train, limit, test, test_names, r_min, r_max):
     trees = HistGradientBoostingClassifier(max_iter=300, random_state=0)
     trees.fit(np.concatenate(xs), np.concatenate(ys))
     right = total = 0
-    for s in test_names:
-        f = dark_ray_features(*read_map(test, s, r_min, r_max))
+    for m in test_maps:
+        f = dark_ray_features(*m)
         if f is not None:
             right += int((trees.predict(f[0]) == f[1]).sum())
             total += f[1].size
@@ -147,10 +147,10 @@ def main():
     r_min, r_max = window["r_min_m"], window["r_max_m"]
     width_mm = 1000.0 * (r_max - r_min)
 
-    samples = sample_names(a.data, a.limit)
+    # Read once: the rule and the trees score the same maps.
+    maps = [read_map(a.data, s, r_min, r_max) for s in sample_names(a.data, a.limit)]
     pixels = dark = dark_near = right = unlit = unlit_maps = 0
-    for sample in samples:
-        near, mask, _ = read_map(a.data, sample, r_min, r_max)
+    for near, mask, _ in maps:
         cols = ~mask.any(axis=0)
         pixels += near.size
         guess = neighbour_rule(near, mask)
@@ -164,7 +164,7 @@ def main():
         right += int(((guess == near) & sel).sum())
     if pixels == 0:
         raise SystemExit(f"no samples in {a.data}")
-    print(f"{len(samples)} maps; {100 * dark / pixels:.1f} % of the pixels in dark columns of maps "
+    print(f"{len(maps)} maps; {100 * dark / pixels:.1f} % of the pixels in dark columns of maps "
           f"that show a surface ({100 * dark_near / max(dark, 1):.1f} % of them near), "
           f"{100 * unlit / pixels:.1f} % in {unlit_maps} maps with no surface")
     wrong = dark - right
@@ -172,10 +172,9 @@ def main():
           f"right; read at r_min / r_max as it says, they would add "
           f"{width_mm * wrong / pixels:.2f} mm to the all-pixel MAE (a wrong class costs "
           f"{width_mm:.0f} mm)")
-    always_far = dark_near
-    print(f"for scale, reading every dark-column ray at r_max: {width_mm * always_far / pixels:.2f} mm")
+    print(f"for scale, reading every dark-column ray at r_max: {width_mm * dark_near / pixels:.2f} mm")
     if a.learned:
-        right, total, fitted = learned_rule(a.learned, a.train_limit, a.data, samples, r_min, r_max)
+        right, total, fitted = learned_rule(a.learned, a.train_limit, maps, r_min, r_max)
         print(f"gradient-boosted trees fitted on {fitted} dark rays of {a.learned}: "
               f"{100 * right / max(total, 1):.1f} % classed right here, "
               f"{width_mm * (total - right) / pixels:.2f} mm of all-pixel MAE")
